@@ -122,7 +122,7 @@ def bandwidths(X: np.ndarray, lows: np.ndarray, highs: np.ndarray, cfg: TPEConfi
     if n >= 2:
         order = np.argsort(X, axis=0)
         gaps = np.diff(np.take_along_axis(X, order, axis=0), axis=0)   # (n-1, D)
-        gaps = np.pad(gaps, ((1, 1), (0, 0)), mode="edge")            # ends reuse their gap
+        gaps = np.pad(gaps, ((1, 1), (0, 0)))                        # no neighbour: gap 0
         np.put_along_axis(sigma, order, np.maximum(gaps[:-1], gaps[1:]), axis=0)
     min_sigma = ranges / min(cfg.min_bw_cap, n + 2)
     return np.clip(sigma, min_sigma, ranges)
