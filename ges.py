@@ -1,0 +1,814 @@
+"""Gaussian Evolutionary Specialists (GES), paper Sec. IV and Alg. 1, in one readable file.
+
+GES keeps K specialists, each owning a diagonal Gaussian "territory" over the design space. Every round it
+  1. trains each specialist on designs drawn from its territory (warm-started from its last checkpoint),
+  2. probes F designs near the territories' 2-sigma borders; every specialist scores every probe and the best
+     scorer wins it (eq. 6),
+  3. refits each Gaussian to the designs it holds (eq. 7),
+and stops when the territories cover 95 % of the design space (eq. 8-9). Afterwards a density router (eq. 10)
+hands any design to one specialist, so an outer search (TPE) scores designs without training.
+
+Equation numbers count the numbered equations of paper/ges_paper.tex in order:
+  (5) space-filling objective of the initialisation, (6) probe argmax [eq:probe], (7) refit [eq:refit],
+  (8) unnormalised f_k, (9) MC coverage c-hat, (10) density router [eq:router_select].
+Provenance of every choice is marked in its docstring: "paper", "facts" (shared/ballu_facts.md, i.e. the
+authors' code read as facts) or "ours" (the paper and the facts are silent).
+
+This module knows nothing about BALLU or PPO. It takes two plain callables (picklable, so that the K
+specialists can run in a process pool):
+
+    train_fn(k, round, sampler, ckpt_in, ckpt_out) -> None
+        k        int, the specialist's index 0..K-1
+        round    int, the GES round 0, 1, ... (the round being trained)
+        sampler  GaussianSampler: sampler(rng, n) -> (n, d) designs in PHYSICAL units drawn from the
+                 specialist's territory (clipped to the box). sampler.seed is an int derived from
+                 (seed, round, k): seed the trainer's own RNGs (torch, env) with it for reproducibility.
+        ckpt_in  str | None, the checkpoint written by this specialist's previous round (None in round 0)
+        ckpt_out str, a file path inside run_dir that the trainer MUST write (overwrite if it exists: a resumed
+                 run repeats an interrupted round). Its format is the trainer's business.
+    score_fn(k, ckpt, designs) -> (n,) array of scores, higher is better
+        designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
+
+Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn),
+plot_territories(history, path). `python ges.py --bench` times coverage/routing, `python ges.py --demo OUT`
+runs a synthetic landscape and writes OUT/territories.png.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+# ---------------------------------------------------------------------------------------------------------
+# Design spaces (paper Sec. III-B, Table I; facts "Design space")
+# ---------------------------------------------------------------------------------------------------------
+FULL_NAMES = ("l_f", "l_t", "gcr", "spcf")  # order of the full 4-vector every simulator receives
+TABLE_I = {"l_f": (0.25, 0.55), "l_t": (0.25, 0.55), "gcr": (0.72, 0.90), "spcf": (0.001, 0.100)}
+# Baseline BALLU (paper Table I). Its GCR 0.70 is OUTSIDE the bounds: a fixed reference, not a sample.
+BASELINE = {"l_f": 0.45, "l_t": 0.45, "gcr": 0.70, "spcf": 0.002}
+# Narrower per-task ranges of the authors' code (facts); "l" is the symmetric leg length of D3.
+TASK_RANGES = {
+    "obstacle": {"gcr": (0.75, 0.89), "spcf": (0.001, 0.010), "l": (0.20, 0.48)},
+    "ramp": {"gcr": (0.725, 0.89), "spcf": (0.005, 0.100), "l": (0.20, 0.48)},
+}
+_KNOWN_NAMES = FULL_NAMES + ("l",)
+
+
+@dataclass
+class DesignSpace:
+    """An axis-aligned box of free design parameters plus fixed values for the rest of (l_f, l_t, gcr, spcf).
+
+    The free name "l" means l_f = l_t = l (paper's D3). GES works in the unit cube [0,1]^d (paper Sec. IV-B);
+    the mapping is linear per axis (paper: "normalized design space"), also for SPCF although it spans two
+    decades (a log axis would be ours, not the paper's).
+    """
+    names: tuple
+    lows: tuple
+    highs: tuple
+    fixed: dict = field(default_factory=dict)
+    task: str | None = None
+
+    def __post_init__(self):
+        self.names, self.lows, self.highs = tuple(self.names), tuple(map(float, self.lows)), tuple(map(float, self.highs))
+        self.fixed = {str(n): float(v) for n, v in self.fixed.items()}
+        if not (len(self.names) == len(self.lows) == len(self.highs) >= 1):
+            raise ValueError(f"names/lows/highs must have the same length >= 1, got {len(self.names)}/"
+                             f"{len(self.lows)}/{len(self.highs)}")
+        for n, lo, hi in zip(self.names, self.lows, self.highs):
+            if n not in _KNOWN_NAMES:
+                raise ValueError(f"design parameter name {n!r} not in {_KNOWN_NAMES}")
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"bounds of {n} must be finite with low < high, got [{lo}, {hi}]")
+        for n in FULL_NAMES:  # every full parameter must come from somewhere
+            if n not in self.names and n not in self.fixed and not (n in ("l_f", "l_t") and "l" in self.names):
+                raise ValueError(f"parameter {n} is neither free nor fixed in this design space")
+
+    @property
+    def d(self) -> int:
+        return len(self.names)
+
+    @property
+    def lo(self) -> np.ndarray:
+        return np.array(self.lows)
+
+    @property
+    def hi(self) -> np.ndarray:
+        return np.array(self.highs)
+
+    def to_unit(self, theta) -> np.ndarray:
+        """Physical -> unit cube (linear per axis)."""
+        return (np.asarray(theta, dtype=float) - self.lo) / (self.hi - self.lo)
+
+    def from_unit(self, x) -> np.ndarray:
+        """Unit cube -> physical."""
+        return self.lo + np.asarray(x, dtype=float) * (self.hi - self.lo)
+
+    def validate(self, theta) -> np.ndarray:
+        """Return theta as an (n, d) float array, or raise ValueError naming the offending parameter."""
+        arr = np.asarray(theta, dtype=float)
+        arr = arr[None, :] if arr.ndim == 1 else arr
+        if arr.ndim != 2 or arr.shape[1] != self.d:
+            raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
+                             f"columns {self.names}")
+        tol = 1e-9 * (self.hi - self.lo)  # round-off of from_unit(to_unit(.)) must not be an error
+        for j, n in enumerate(self.names):
+            bad = ~np.isfinite(arr[:, j]) | (arr[:, j] < self.lo[j] - tol[j]) | (arr[:, j] > self.hi[j] + tol[j])
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise ValueError(f"{n}={arr[i, j]!r} (row {i}) is outside the design space: allowed range "
+                                 f"[{self.lows[j]}, {self.highs[j]}]")
+        return arr
+
+    def sample_uniform(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """n uniform designs, physical units."""
+        return self.from_unit(rng.random((n, self.d)))
+
+    def full(self, theta) -> np.ndarray:
+        """(n, 4) array of (l_f, l_t, gcr, spcf) for the simulator (paper Sec. III-B: D2 fixes the legs,
+        D3 ties them: l_f = l_t = l)."""
+        arr = self.validate(theta)
+        cols = []
+        for n in FULL_NAMES:
+            if n in self.names:
+                cols.append(arr[:, self.names.index(n)])
+            elif n in ("l_f", "l_t") and "l" in self.names:
+                cols.append(arr[:, self.names.index("l")])
+            else:
+                cols.append(np.full(len(arr), self.fixed[n]))
+        return np.stack(cols, axis=1)
+
+    def to_dict(self) -> dict:
+        return {"names": list(self.names), "lows": list(self.lows), "highs": list(self.highs),
+                "fixed": dict(self.fixed), "task": self.task}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "DesignSpace":
+        return cls(tuple(d["names"]), tuple(d["lows"]), tuple(d["highs"]), dict(d["fixed"]), d.get("task"))
+
+
+def _bounds(names, task, ranges):
+    if task not in (None, "obstacle", "ramp"):
+        raise ValueError(f"task={task!r} not allowed: use None, 'obstacle' or 'ramp'")
+    if ranges not in ("table", "facts"):
+        raise ValueError(f"ranges={ranges!r} not allowed: use 'table' (paper Table I) or 'facts' (per-task)")
+    if ranges == "facts" and task is None:
+        raise ValueError("ranges='facts' needs task='obstacle' or 'ramp' (the facts' ranges are per task)")
+    table = dict(TABLE_I, l=TABLE_I["l_f"])
+    src = TASK_RANGES[task] if ranges == "facts" else table
+    return tuple(src[n][0] for n in names), tuple(src[n][1] for n in names)
+
+
+def d2(task: str | None = None, ranges: str = "table") -> DesignSpace:
+    """D2 = (GCR, SPCF) with l_f = l_t = 0.45 m (paper Sec. III-B). ranges='table': Table I bounds (paper);
+    ranges='facts': the narrower per-task ranges of the authors' code (facts)."""
+    lows, highs = _bounds(("gcr", "spcf"), task, ranges)
+    return DesignSpace(("gcr", "spcf"), lows, highs, {"l_f": BASELINE["l_f"], "l_t": BASELINE["l_t"]}, task)
+
+
+def d3(task: str | None = None, ranges: str = "table") -> DesignSpace:
+    """D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B). l in Table I's leg range [0.25, 0.55]
+    (paper), or [0.20, 0.48] with ranges='facts' (facts)."""
+    lows, highs = _bounds(("gcr", "spcf", "l"), task, ranges)
+    return DesignSpace(("gcr", "spcf", "l"), lows, highs, {}, task)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Settings
+# ---------------------------------------------------------------------------------------------------------
+INIT_METHODS = ("grid", "random", "fps", "fps+lloyd")
+ROUTERS = ("density", "oracle")
+
+
+@dataclass
+class GESConfig:
+    K: int = 3                        # specialists: 3 in D2, 6 in D3 (facts; paper Sec. V)
+    n_probe: int = 100                # F probes per round (facts; paper Alg. 1 names F)
+    probe_pool: int = 2000            # uniform points the probes are picked from (facts)
+    band_lo: float = -2.5             # probe band on max_k log f_k (eq. 8): -2.5 < . < -0.5, i.e. Mahalanobis
+    band_hi: float = -0.5             #   distance 1..2.24 around the 2-sigma border (facts)
+    n_init_designs: int = 50          # designs per specialist seeding eta_k (facts)
+    n_mc: int = 10_000                # N_mc MC coverage points (paper Sec. V-A)
+    tau: float = math.exp(-2)         # coverage threshold on f_k, the 2-sigma contour (paper eq. 8)
+    target_coverage: float = 0.95     # stop criterion (paper Sec. IV-B)
+    init_coverage: float = 0.12       # sigma_0 calibrated to this MC coverage (paper Sec. V-A)
+    max_rounds: int = 20              # hard stop (facts)
+    lloyd_iters: int = 12             # T Lloyd iterations (facts; paper Sec. IV-B names T)
+    fps_pool: int = 10_000            # uniform pool for FPS and Lloyd (facts)
+    var_floor: float = 1e-4           # per-axis variance floor (1 % of the range)^2 in unit coords (facts)
+    init: str = "fps+lloyd"           # centre initialisation (paper Sec. IV-B and Table III)
+    router: str = "density"           # outer-loop router: 'density' (paper eq. 10) or 'oracle' (facts, QUIRK)
+
+    def __post_init__(self):
+        def need(name, ok, allowed):
+            if not ok:
+                raise ValueError(f"GESConfig.{name}={getattr(self, name)!r} not allowed: {allowed}")
+        for name in ("K", "n_probe", "probe_pool", "n_init_designs", "n_mc", "max_rounds", "fps_pool"):
+            need(name, isinstance(getattr(self, name), (int, np.integer)) and getattr(self, name) >= 1,
+                 "an integer >= 1")
+        need("lloyd_iters", isinstance(self.lloyd_iters, (int, np.integer)) and self.lloyd_iters >= 0,
+             "an integer >= 0")
+        need("probe_pool", self.probe_pool >= self.n_probe, f"an integer >= n_probe={self.n_probe}")
+        need("fps_pool", self.fps_pool >= self.K, f"an integer >= K={self.K}")
+        need("band_hi", self.band_hi <= 0, "<= 0 (a log of f_k <= 1)")
+        need("band_lo", self.band_lo < self.band_hi, f"< band_hi={self.band_hi}")
+        need("tau", 0 < self.tau < 1, "in (0, 1)")
+        need("target_coverage", 0 < self.target_coverage <= 1, "in (0, 1]")
+        need("init_coverage", 0 < self.init_coverage < 1, "in (0, 1)")
+        need("var_floor", self.var_floor > 0, "> 0")
+        need("init", self.init in INIT_METHODS, f"one of {INIT_METHODS}")
+        need("router", self.router in ROUTERS, f"one of {ROUTERS}")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Randomness: every draw comes from a generator derived from (seed, stream, round, k), so results do not
+# depend on the order in which specialists run (ours).
+# ---------------------------------------------------------------------------------------------------------
+INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE = range(5)  # stream ids
+
+
+def rng_for(seed: int, *keys: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, *keys]))
+
+
+def seed_for(seed: int, *keys: int) -> int:
+    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0])
+
+
+def mc_points(seed: int, n: int, d: int) -> np.ndarray:
+    """The N_mc uniform points of eq. 9. The same points every round (common random numbers), so the coverage
+    history is not jittered by MC noise (ours)."""
+    return rng_for(seed, COVERAGE).random((n, d))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Gaussian territories in the unit cube: f_k, coverage, density, router
+# ---------------------------------------------------------------------------------------------------------
+def log_f(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """log f_k(x) = -sum_d (x_d - mu_kd)^2 / (2 sigma_kd^2), the unnormalised density of eq. 8. (n, K)."""
+    z = (x[:, None, :] - mu[None, :, :]) / sigma[None, :, :]
+    return -0.5 * np.einsum("nkd,nkd->nk", z, z)
+
+
+def coverage(mu: np.ndarray, sigma: np.ndarray, points: np.ndarray, tau: float = math.exp(-2)) -> float:
+    """MC coverage c-hat (eq. 9): fraction of points with max_k f_k > tau (eq. 8; tau = e^-2 is the 2-sigma
+    contour)."""
+    return float(np.mean(log_f(points, mu, sigma).max(axis=1) > math.log(tau)))
+
+
+def log_density(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """log N(x | mu_k, diag sigma_k^2), normalised (determinant included), in log space. (n, K)."""
+    d = mu.shape[1]
+    return log_f(x, mu, sigma) - np.log(sigma).sum(axis=1)[None, :] - 0.5 * d * math.log(2 * math.pi)
+
+
+def route(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Density router (paper eq. 10): k* = argmax_k N(x | mu_k, Sigma_k), ties to the lower index. The argmax
+    is the same in unit and physical coordinates (the Jacobian is common to all k)."""
+    return np.argmax(log_density(np.atleast_2d(x), mu, sigma), axis=1)
+
+
+def refit(eta: np.ndarray, var_floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    """Refit (paper eq. 7): mu = mean(eta), Sigma = diagcov(eta), with the variance floored at var_floor
+    (facts) so a territory never collapses to a line. Population variance (ddof=0, numpy's default; ours)."""
+    return eta.mean(axis=0), np.sqrt(np.maximum(eta.var(axis=0), var_floor))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Initialisation (paper Sec. IV-B, Table III; facts): centres, sigma_0, initial designs
+# ---------------------------------------------------------------------------------------------------------
+def farthest_point_sampling(pool: np.ndarray, K: int, rng: np.random.Generator) -> np.ndarray:
+    """FPS (paper): start at a random pool point, then repeatedly add the pool point farthest from the
+    centres chosen so far. Greedy 2-approximation of the min-max objective eq. 5."""
+    chosen = [int(rng.integers(len(pool)))]
+    dist = np.linalg.norm(pool - pool[chosen[0]], axis=1)
+    for _ in range(K - 1):
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(pool - pool[chosen[-1]], axis=1))
+    return pool[chosen].copy()
+
+
+def lloyd(centers: np.ndarray, pool: np.ndarray, iters: int) -> np.ndarray:
+    """Lloyd relaxation (paper): move each centre to the centroid of its Voronoi cell of the pool. FPS picks
+    the box's corners and edges; Lloyd pulls the centres in so they tile the box evenly. An empty cell keeps
+    its centre (ours)."""
+    c = centers.copy()
+    for _ in range(iters):
+        owner = np.argmin(((pool[:, None, :] - c[None]) ** 2).sum(-1), axis=1)
+        for k in range(len(c)):
+            if np.any(owner == k):
+                c[k] = pool[owner == k].mean(axis=0)
+    return c
+
+
+def grid_centers(K: int, d: int) -> np.ndarray:
+    """Grid baseline of Table III (details ours): cell centres of the smallest m^d grid with m^d >= K, first
+    K in lexicographic order. Unbalanced when K is not m^d, as the paper notes for odd K."""
+    m = 1
+    while m ** d < K:
+        m += 1
+    cells = np.stack(np.meshgrid(*[np.arange(m)] * d, indexing="ij"), axis=-1).reshape(-1, d)
+    return (cells[:K] + 0.5) / m
+
+
+def init_centers(method: str, K: int, d: int, rng: np.random.Generator, pool_size: int = 10_000,
+                 lloyd_iters: int = 12) -> np.ndarray:
+    """K centres in [0,1]^d by 'grid', 'random', 'fps' or 'fps+lloyd' (paper's default; pool of 10,000
+    uniform points and 12 Lloyd iterations per the facts)."""
+    if method not in INIT_METHODS:
+        raise ValueError(f"method={method!r} not allowed: one of {INIT_METHODS}")
+    if K < 1 or d < 1:
+        raise ValueError(f"K={K} and d={d} must both be >= 1")
+    if method == "grid":
+        return grid_centers(K, d)
+    if method == "random":
+        return rng.random((K, d))
+    pool = rng.random((pool_size, d))
+    c = farthest_point_sampling(pool, K, rng)
+    return lloyd(c, pool, lloyd_iters) if method == "fps+lloyd" else c
+
+
+def calibrate_sigma(mu: np.ndarray, points: np.ndarray, target: float = 0.12, tau: float = math.exp(-2),
+                    iters: int = 60) -> np.ndarray:
+    """sigma_0 (facts): isotropic per unit axis, proportional to 1/K^(1/d) (range/K^(1/d) in physical units),
+    scaled by bisection until the MC coverage (eq. 9, on `points`) reaches `target` (12 %, paper Sec. V-A).
+    Coverage is monotone in the scale, so bisection returns the smallest scale reaching the target."""
+    K, d = mu.shape
+    base = np.full((K, d), K ** (-1.0 / d))
+    lo, hi = 0.0, 1.0
+    while coverage(mu, hi * base, points, tau) < target:
+        hi *= 2.0
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if coverage(mu, mid * base, points, tau) >= target else (mid, hi)
+    return hi * base
+
+
+def sample_clipped(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n draws from N(mu, diag sigma^2) clipped to the unit box (facts: 'clipped to the box')."""
+    return np.clip(mu + sigma * rng.standard_normal((n, len(mu))), 0.0, 1.0)
+
+
+def sample_probes(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n_probe: int = 100,
+                  pool_size: int = 2000, band: tuple = (-2.5, -0.5)) -> np.ndarray:
+    """Border probes (paper Alg. 1 SampleBorder; facts): pool_size uniform points, keep those whose
+    g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first). Outermost
+    first and the top-up below follow the authors' code (scripts/pec, not spelled out in the facts file):
+    it is what makes territories grow at a useful pace (random in-band picks grow them ~sqrt(rounds)).
+    If fewer than n_probe lie in the band, top up with the out-of-band points of lowest g, i.e. those
+    farthest from every territory. Returns (n_probe, d) unit points."""
+    pool = rng.random((pool_size, mu.shape[1]))
+    g = log_f(pool, mu, sigma).max(axis=1)
+    in_band = (g > band[0]) & (g < band[1])
+    order = np.lexsort((g, ~in_band))  # in-band first, then by g ascending
+    return pool[order[:n_probe]]
+
+
+@dataclass(eq=False)
+class GaussianSampler:
+    """A specialist's territory as handed to train_fn: sampler(rng, n) -> (n, d) PHYSICAL designs drawn from
+    N(mu, diag sigma^2) in unit coordinates, clipped to the box. Picklable. `seed` (derived from
+    (seed, round, k)) is for the trainer's own RNGs."""
+    mu: np.ndarray      # (d,) unit
+    sigma: np.ndarray   # (d,) unit
+    space: DesignSpace
+    seed: int = 0
+
+    def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        return self.space.from_unit(sample_clipped(self.mu, self.sigma, rng, n))
+
+    @property
+    def mu_physical(self) -> np.ndarray:
+        return self.space.from_unit(self.mu)
+
+    @property
+    def sigma_physical(self) -> np.ndarray:
+        return self.sigma * (self.space.hi - self.space.lo)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Executors: the K specialists' train and probe tasks are independent (paper Sec. V-D)
+# ---------------------------------------------------------------------------------------------------------
+class SerialExecutor(Executor):
+    """Runs each task inline at submit(): for debugging and tests. Same results as any other Executor."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # delivered through the future, like a pool would
+            fut.set_exception(exc)
+        return fut
+
+
+def _map_all(executor: Executor, fn: Callable, arg_lists: list) -> list:
+    """Run fn(*args) for every args on the executor; results in input order (never completion order). Waits
+    for every task before re-raising the first failure, so no task still writes files after we return."""
+    futures = [executor.submit(fn, *args) for args in arg_lists]
+    wait(futures)
+    for f in futures:
+        if f.exception() is not None:
+            raise f.exception()
+    return [f.result() for f in futures]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# State, history, result (all JSON; floats round-trip exactly through json's repr)
+# ---------------------------------------------------------------------------------------------------------
+STATE_FILE, HISTORY_FILE, CKPT_DIR = "state.json", "history.json", "ckpt"
+
+
+def _atomic_json(path: str, obj) -> None:
+    """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state (ours)."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _history_entry(space, state: dict, cov: float, wins, probes, winner) -> dict:
+    mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
+    return {"round": state["round"], "coverage": cov,
+            "mu_unit": mu.tolist(), "sigma_unit": sigma.tolist(),
+            "mu": space.from_unit(mu).tolist(), "sigma": (sigma * (space.hi - space.lo)).tolist(),
+            "wins": [int(w) for w in wins], "n_designs": [len(e) for e in state["eta"]],
+            "probes_unit": np.asarray(probes).tolist(), "winner": [int(w) for w in winner],
+            "ckpt": list(state["ckpt"])}
+
+
+def _history_doc(space, config, seed, entries) -> dict:
+    return {"space": space.to_dict(), "config": asdict(config), "seed": seed, "rounds": entries}
+
+
+def initial_state(space: DesignSpace, config: GESConfig, seed: int, points: np.ndarray) -> dict:
+    """Alg. 1 lines 1-4: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k."""
+    mu = init_centers(config.init, config.K, space.d, rng_for(seed, INIT), config.fps_pool, config.lloyd_iters)
+    sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
+    eta = [sample_clipped(mu[k], sigma[k], rng_for(seed, INIT_DESIGNS, k), config.n_init_designs)
+           for k in range(config.K)]
+    state = {"round": 0, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in eta],
+             "ckpt": [None] * config.K, "done": False}
+    zeros = [0] * config.K
+    state["history"] = [_history_entry(space, state, coverage(mu, sigma, points, config.tau), zeros,
+                                       np.zeros((0, space.d)), [])]
+    return state
+
+
+def _load_state(run_dir: str, space: DesignSpace, config: GESConfig, seed: int) -> dict | None:
+    path = os.path.join(run_dir, STATE_FILE)
+    if not os.path.exists(path):
+        return None
+    with open(path) as fh:
+        state = json.load(fh)
+    for what, saved, now in (("space", state["space"], space.to_dict()), ("config", state["config"],
+                             asdict(config)), ("seed", state["seed"], seed)):
+        if saved != now:
+            raise ValueError(f"run_dir={run_dir!r} holds a run with a different {what} ({saved} vs {now}); "
+                             f"resume with the same settings or use a new run_dir")
+    return state
+
+
+def _save_state(run_dir, space, config, seed, state) -> None:
+    _atomic_json(os.path.join(run_dir, STATE_FILE), dict(state, space=space.to_dict(), config=asdict(config),
+                                                         seed=seed))
+    _atomic_json(os.path.join(run_dir, HISTORY_FILE), _history_doc(space, config, seed, state["history"]))
+
+
+@dataclass(eq=False)
+class GESResult:
+    """What GES hands to the outer search: territories (unit and physical), final checkpoints, history."""
+    space: DesignSpace
+    config: GESConfig
+    seed: int
+    run_dir: str
+    mu_unit: np.ndarray      # (K, d)
+    sigma_unit: np.ndarray   # (K, d)
+    mu: np.ndarray           # (K, d) physical
+    sigma: np.ndarray        # (K, d) physical
+    ckpt: list               # absolute paths of each specialist's last checkpoint
+    history: dict            # the content of history.json
+    rounds: int
+    coverage: float
+
+    def route(self, theta) -> np.ndarray:
+        """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
+        return route(self.space.to_unit(self.space.validate(theta)), self.mu_unit, self.sigma_unit)
+
+
+def _result(run_dir, space, config, seed, state) -> GESResult:
+    mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
+    return GESResult(space, config, seed, run_dir, mu, sigma, space.from_unit(mu), sigma * (space.hi - space.lo),
+                     [os.path.join(run_dir, c) if c else None for c in state["ckpt"]],
+                     _history_doc(space, config, seed, state["history"]), state["round"],
+                     state["history"][-1]["coverage"])
+
+
+def load_result(run_dir: str) -> GESResult:
+    """Rebuild the GESResult of a (finished or interrupted) run from its state.json."""
+    with open(os.path.join(run_dir, STATE_FILE)) as fh:
+        state = json.load(fh)
+    space = DesignSpace.from_dict(state["space"])
+    return _result(run_dir, space, GESConfig(**state["config"]), state["seed"], state)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The GES loop (paper Alg. 1)
+# ---------------------------------------------------------------------------------------------------------
+def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points) -> dict:
+    """One Train-Probe-Refit round (Alg. 1 lines 7-19). Returns the new state; `state` is not modified."""
+    t, K = state["round"], config.K
+    mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
+    ckpt_out = [os.path.join(CKPT_DIR, f"spec{k}_round{t:02d}.ckpt") for k in range(K)]
+    # Train (Alg. 1 lines 8-11): each specialist on its own territory, warm-started (paper).
+    samplers = [GaussianSampler(mu[k], sigma[k], space, seed_for(seed, TRAIN, t, k)) for k in range(K)]
+    _map_all(executor, train_fn, [(k, t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
+                                   if state["ckpt"][k] else None, os.path.join(run_dir, ckpt_out[k]))
+                                  for k in range(K)])
+    for k in range(K):
+        if not os.path.exists(os.path.join(run_dir, ckpt_out[k])):
+            raise RuntimeError(f"train_fn did not write ckpt_out for specialist {k} in round {t}")
+    # Probe (Alg. 1 lines 12-16, eq. 6): every specialist scores every border candidate.
+    probes = sample_probes(mu, sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
+                           (config.band_lo, config.band_hi))
+    designs = space.from_unit(probes)
+    scores = _map_all(executor, score_fn, [(k, os.path.join(run_dir, ckpt_out[k]), designs) for k in range(K)])
+    scores = np.stack([np.asarray(s, dtype=float).reshape(-1) for s in scores])
+    if scores.shape != (K, len(probes)) or np.isnan(scores).any():
+        raise ValueError(f"score_fn must return {len(probes)} non-NaN scores per specialist, got shape "
+                         f"{scores.shape} with {int(np.isnan(scores).sum())} NaN")
+    winner = np.argmax(scores, axis=0)  # ties -> lower index (facts)
+    # Refit (Alg. 1 line 17, eq. 7) each territory to all the designs it holds.
+    eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
+    fits = [refit(e, config.var_floor) for e in eta]
+    mu, sigma = np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
+    cov = coverage(mu, sigma, points, config.tau)  # Alg. 1 line 18, eq. 9
+    new = {"round": t + 1, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in eta],
+           "ckpt": ckpt_out, "done": bool(cov >= config.target_coverage or t + 1 >= config.max_rounds)}
+    wins = np.bincount(winner, minlength=K)
+    new["history"] = state["history"] + [_history_entry(space, new, cov, wins, probes, winner)]
+    return new
+
+
+def run_ges(space: DesignSpace, train_fn: Callable, score_fn: Callable, run_dir: str,
+            config: GESConfig | None = None, seed: int = 0, executor: Executor | None = None,
+            progress: Callable[[str], None] | None = print) -> GESResult:
+    """Run (or resume) GES until MC coverage >= target or max_rounds (paper Alg. 1).
+
+    The state is saved atomically after every completed round; calling again on the same run_dir resumes at
+    the last completed round and ends with exactly the result of an uninterrupted run (all randomness derives
+    from (seed, round, k)). executor=None uses a ProcessPoolExecutor with os.cpu_count() workers; pass
+    SerialExecutor() to debug. train_fn, score_fn: see the module docstring."""
+    config = config or GESConfig()
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r} not allowed: a non-negative integer")
+    say = progress or (lambda s: None)
+    os.makedirs(os.path.join(run_dir, CKPT_DIR), exist_ok=True)
+    points = mc_points(seed, config.n_mc, space.d)
+    state = _load_state(run_dir, space, config, seed)
+    if state is None:
+        state = initial_state(space, config, seed, points)
+        _save_state(run_dir, space, config, seed, state)
+        say(f"GES init: K={config.K} d={space.d} ({config.init}), coverage {state['history'][0]['coverage']:.1%}")
+    elif not state["done"]:
+        say(f"GES resume: {run_dir} after round {state['round']}")
+    own = executor is None and not state["done"]
+    executor = ProcessPoolExecutor(max_workers=os.cpu_count()) if own else executor
+    start = time.time()
+    try:
+        while not state["done"]:
+            state = ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points)
+            _save_state(run_dir, space, config, seed, state)
+            h = state["history"][-1]
+            say(f"round {h['round']:2d}/{config.max_rounds}  coverage {h['coverage']:6.1%}  wins {h['wins']}  "
+                f"elapsed {time.time() - start:7.1f}s")
+    finally:
+        if own:
+            executor.shutdown()
+    return _result(run_dir, space, config, seed, state)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Routed evaluator for the outer search (paper Sec. IV-C)
+# ---------------------------------------------------------------------------------------------------------
+class RoutedEvaluator:
+    """J(theta) for TPE: 'density' scores theta with the specialist of highest Gaussian density (paper
+    eq. 10, default); 'oracle' scores it with every specialist and keeps the best (the authors' code, facts).
+    theta physical, (d,) -> float or (n, d) -> (n,)."""
+
+    def __init__(self, result: GESResult, score_fn: Callable, router: str | None = None):
+        router = router or result.config.router
+        if router not in ROUTERS:
+            raise ValueError(f"router={router!r} not allowed: one of {ROUTERS}")
+        self.result, self.score_fn, self.router = result, score_fn, router
+
+    def __call__(self, theta):
+        x = self.result.space.validate(theta)
+        r = self.result
+        if self.router == "oracle":
+            out = np.max([np.asarray(self.score_fn(k, r.ckpt[k], x), float) for k in range(len(r.ckpt))], axis=0)
+        else:
+            ks, out = r.route(x), np.empty(len(x))
+            for k in np.unique(ks):
+                out[ks == k] = np.asarray(self.score_fn(int(k), r.ckpt[k], x[ks == k]), float)
+        return float(out[0]) if np.ndim(theta) == 1 else out
+
+
+def routed_evaluator(result: GESResult, score_fn: Callable, router: str | None = None) -> RoutedEvaluator:
+    """J(theta) callable of the routed specialist's score; router None -> result.config.router."""
+    return RoutedEvaluator(result, score_fn, router)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Figures
+# ---------------------------------------------------------------------------------------------------------
+COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
+
+
+def _snapshots(n_rounds: int, n: int = 4) -> list:
+    return sorted(set(int(round(i)) for i in np.linspace(0, n_rounds - 1, min(n, n_rounds))))
+
+
+def plot_territories(history: dict, path: str, background: Callable | None = None) -> str:
+    """Territory evolution: 2-sigma ellipses (the coverage contour of eq. 8) at a few rounds, with the probes
+    of that round coloured by winner and each centre's trail; pairwise projections when d = 3; plus coverage
+    and wins per round. `history` is the dict of history.json (or GESResult.history). `background(x_unit)`
+    -> int labels may shade planted regions (2-D only). Uses matplotlib's Agg canvas, no pyplot state."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Ellipse
+
+    space, rounds = DesignSpace.from_dict(history["space"]), history["rounds"]
+    lo, hi, d = space.lo, space.hi, space.d
+    pairs = [(0, 1)] if d == 2 else [(i, j) for i in range(d) for j in range(i + 1, d)]
+    snaps = _snapshots(len(rounds))
+    fig = Figure(figsize=(3.3 * (len(snaps) + 1), 3.1 * len(pairs) + 0.4), layout="constrained")
+    axes = fig.subplots(len(pairs), len(snaps) + 1, squeeze=False)
+    K = len(rounds[0]["mu"])
+    for r_i, (i, j) in enumerate(pairs):
+        for c_i, s in enumerate(snaps):
+            ax, h = axes[r_i, c_i], rounds[s]
+            if background is not None and d == 2:  # planted regions: light fill + dashed borders
+                g = np.linspace(0, 1, 300)
+                gx, gy = np.meshgrid(g, g)
+                lab = background(np.stack([gx.ravel(), gy.ravel()], 1)).reshape(gx.shape)
+                px, py = lo[0] + gx * (hi[0] - lo[0]), lo[1] + gy * (hi[1] - lo[1])
+                levels = np.arange(lab.max() + 2) - 0.5
+                ax.contourf(px, py, lab, levels=levels, cmap="Greys", vmin=-1, vmax=3 * lab.max() + 3)
+                ax.contour(px, py, lab, levels=levels[1:-1], colors="k", linewidths=0.8, linestyles="--")
+            probes = space.from_unit(np.array(h["probes_unit"]).reshape(-1, d))
+            for k in range(K):
+                col = COLORS[k % len(COLORS)]
+                mu, sg = np.array(h["mu"][k]), np.array(h["sigma"][k])
+                ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc=col, ec=col, alpha=0.18, lw=0))
+                ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc="none", ec=col, lw=1.6))
+                trail = np.array([rounds[t]["mu"][k] for t in range(s + 1)])
+                ax.plot(trail[:, i], trail[:, j], "-", color=col, lw=0.8, alpha=0.7)
+                ax.plot(mu[i], mu[j], "o", color=col, mec="k", ms=6)
+                won = np.array(h["winner"]) == k
+                if won.any():
+                    ax.plot(probes[won, i], probes[won, j], ".", color=col, ms=3.5, alpha=0.9)
+            ax.set_xlim(lo[i], hi[i])
+            ax.set_ylim(lo[j], hi[j])
+            ax.set_xlabel(space.names[i])
+            ax.set_ylabel(space.names[j])
+            if r_i == 0:
+                ax.set_title(f"round {h['round']}: coverage {h['coverage']:.0%}", fontsize=10)
+        axes[r_i, -1].axis("off")
+    ax = axes[0, -1]
+    ax.axis("on")
+    t = [h["round"] for h in rounds]
+    ax.plot(t, [100 * h["coverage"] for h in rounds], "k.-", label="MC coverage")
+    ax.axhline(100 * history["config"]["target_coverage"], color="gray", ls="--", lw=1, label="target")
+    wins = np.array([h["wins"] for h in rounds])
+    bottom = np.zeros(len(t))
+    for k in range(K):
+        share = 100 * wins[:, k] / np.maximum(wins.sum(1), 1)
+        ax.bar(t, share, bottom=bottom, color=COLORS[k % len(COLORS)], alpha=0.35, width=0.8,
+               label=f"specialist {k} wins")
+        bottom += share
+    ax.set_ylim(0, 105)
+    ax.set_xlabel("round")
+    ax.set_ylabel("coverage %  /  share of probes won")
+    ax.set_title("coverage and wins per round", fontsize=10)
+    handles, labels = ax.get_legend_handles_labels()
+    if len(pairs) > 1:  # 3-D: the legend gets its own (otherwise empty) cell
+        axes[1, -1].legend(handles, labels, loc="center", fontsize=9)
+    else:
+        ax.legend(handles, labels, fontsize=7, loc="lower right", framealpha=0.9)
+    fig.suptitle(f"GES territories (2-sigma ellipses, dots: probes won this round), K={K}, d={d}"
+                 + (f", task {space.task}" if space.task else "")
+                 + ("; grey/dashed: planted regions" if background is not None and d == 2 else ""))
+    fig.savefig(path, dpi=110)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, --demo)
+# ---------------------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class PlantedLandscape:
+    """Planted sites b in the unit cube; behaviour b is good near site b: quality q_b(x) =
+    exp(-|x - site_b|^2 / (2 width^2)), so the best behaviour's regions are the sites' Voronoi cells.
+    A specialist is a logit vector p over behaviours; its score on x is sum_b softmax(p)_b q_b(x). train()
+    really improves it: gradient ascent on the mean score over designs drawn from its territory, i.e. toward
+    the behaviour best on the designs it is given. Checkpoints are small JSON files. Picklable."""
+    space: DesignSpace
+    sites: np.ndarray
+    width: float = 0.3
+    n_designs: int = 64
+    steps: int = 25
+    lr: float = 5.0
+
+    def quality(self, x_unit: np.ndarray) -> np.ndarray:
+        d2 = ((np.atleast_2d(x_unit)[:, None, :] - np.asarray(self.sites)[None]) ** 2).sum(-1)
+        return np.exp(-d2 / (2 * self.width ** 2))
+
+    def region(self, x_unit: np.ndarray) -> np.ndarray:
+        return np.argmax(self.quality(x_unit), axis=1)
+
+    def policy(self, ckpt: str | None) -> np.ndarray:
+        if ckpt is None:
+            return np.zeros(len(self.sites))
+        with open(ckpt) as fh:
+            return np.array(json.load(fh)["p"])
+
+    def train(self, k, round, sampler, ckpt_in, ckpt_out):
+        rng, p = np.random.default_rng(sampler.seed), self.policy(ckpt_in)
+        for _ in range(self.steps):
+            qbar = self.quality(self.space.to_unit(sampler(rng, self.n_designs))).mean(axis=0)
+            pi = np.exp(p - p.max())
+            pi /= pi.sum()
+            p = p + self.lr * pi * (qbar - pi @ qbar)  # d/dp of sum_b softmax(p)_b qbar_b
+        _atomic_json(ckpt_out, {"p": p.tolist(), "k": k, "round": round})
+
+    def score(self, k, ckpt, designs):
+        p = self.policy(ckpt)
+        pi = np.exp(p - p.max())
+        return self.quality(self.space.to_unit(designs)) @ (pi / pi.sum())
+
+
+DEMO_SITES_2D = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])
+
+
+def demo(out_dir: str, dim: int = 2, seed: int = 0, workers: int = 1) -> GESResult:
+    """Run GES on the planted landscape (D2 with K=3, or D3 with K=6) and write out_dir/territories.png."""
+    space = d2() if dim == 2 else d3()
+    K = 3 if dim == 2 else 6
+    sites = DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3))
+    land = PlantedLandscape(space, sites)
+    ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
+    with ex:
+        res = run_ges(space, land.train, land.score, out_dir, GESConfig(K=K), seed, ex)
+    png = plot_territories(res.history, os.path.join(out_dir, "territories.png"),
+                           background=land.region if dim == 2 else None)
+    print(f"wrote {png}")
+    return res
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Benchmark
+# ---------------------------------------------------------------------------------------------------------
+def _best_time(fn, repeats: int = 7, loops: int = 5) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(loops):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / loops)
+    return best
+
+
+def bench() -> dict:
+    """Time one coverage estimate (N_mc = 10^4, K = 6, d = 3) and one routing of 10^4 points, next to a
+    reference measured in the same run: plain numpy density of ONE Gaussian on the same points."""
+    rng = rng_for(0)
+    pts, mu, sigma = rng.random((10_000, 3)), rng.random((6, 3)), 0.05 + 0.2 * rng.random((6, 3))
+    ref = _best_time(lambda: np.exp(-0.5 * (((pts - mu[0]) / sigma[0]) ** 2).sum(1)) / np.prod(sigma[0]))
+    t = {"reference_one_gaussian": ref, "coverage_K6": _best_time(lambda: coverage(mu, sigma, pts)),
+         "route_K6": _best_time(lambda: route(pts, mu, sigma))}
+    for name, s in t.items():
+        print(f"{name:24s} {1e3 * s:8.3f} ms   ({s / ref:5.1f} x reference)")
+    return t
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--bench", action="store_true", help="time coverage and routing")
+    ap.add_argument("--demo", metavar="OUT_DIR", help="run the synthetic landscape, write territories.png")
+    ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="demo design space D2 or D3")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=1, help="demo: >1 uses a ProcessPoolExecutor")
+    args = ap.parse_args()
+    if args.bench:
+        bench()
+    if args.demo:
+        demo(args.demo, args.dim, args.seed, args.workers)
+    if not (args.bench or args.demo):
+        ap.print_help()
