@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.special import logsumexp, ndtr, ndtri
+from scipy.special import ndtr, ndtri
 
 FILE_FORMAT = "tpe-study-v1"
 
@@ -132,6 +132,12 @@ def bandwidths(X: np.ndarray, lows: np.ndarray, highs: np.ndarray, cfg: TPEConfi
 # 3. Truncated Gaussian on [low, high] (vectorised, broadcasting)
 # ----------------------------------------------------------------------------
 _LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
+
+
+def logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
+    """log(sum(exp(a))) without overflow (scipy's version is ~4x slower here)."""
+    m = a.max(axis=axis, keepdims=True)
+    return np.squeeze(m, axis) + np.log(np.exp(a - m).sum(axis=axis))
 
 
 def trunc_log_pdf(x, mu, sigma, low, high):
