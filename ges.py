@@ -122,7 +122,7 @@ class DesignSpace:
             bad = ~np.isfinite(arr[:, j]) | (arr[:, j] < self.lo[j] - tol[j]) | (arr[:, j] > self.hi[j] + tol[j])
             if bad.any():
                 i = int(np.argmax(bad))
-                raise ValueError(f"{n}={arr[i, j]!r} (row {i}) is outside the design space: allowed range "
+                raise ValueError(f"{n}={float(arr[i, j])!r} (row {i}) is outside the design space: allowed range "
                                  f"[{self.lows[j]}, {self.highs[j]}]")
         return arr
 
@@ -381,7 +381,8 @@ class GaussianSampler:
     seed: int = 0
 
     def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        return self.space.from_unit(sample_clipped(self.mu, self.sigma, rng, n))
+        x = self.space.from_unit(sample_clipped(self.mu, self.sigma, rng, n))
+        return np.clip(x, self.space.lo, self.space.hi)  # no ulp past the bounds
 
     @property
     def mu_physical(self) -> np.ndarray:
@@ -607,6 +608,8 @@ class RoutedEvaluator:
         router = router or result.config.router
         if router not in ROUTERS:
             raise ValueError(f"router={router!r} not allowed: one of {ROUTERS}")
+        if any(c is None for c in result.ckpt):
+            raise ValueError(f"result has no trained checkpoints yet (rounds={result.rounds}); run GES first")
         self.result, self.score_fn, self.router = result, score_fn, router
 
     def __call__(self, theta):
