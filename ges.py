@@ -76,7 +76,8 @@ class DesignSpace:
     task: str | None = None
 
     def __post_init__(self):
-        self.names, self.lows, self.highs = tuple(self.names), tuple(map(float, self.lows)), tuple(map(float, self.highs))
+        self.names = tuple(self.names)
+        self.lows, self.highs = tuple(map(float, self.lows)), tuple(map(float, self.highs))
         self.fixed = {str(n): float(v) for n, v in self.fixed.items()}
         if not (len(self.names) == len(self.lows) == len(self.highs) >= 1):
             raise ValueError(f"names/lows/highs must have the same length >= 1, got {len(self.names)}/"
@@ -188,6 +189,7 @@ ROUTERS = ("density", "oracle")
 
 @dataclass
 class GESConfig:
+    """GES settings. Every default is the paper's or the facts' value (source in the comment)."""
     K: int = 3                        # specialists: 3 in D2, 6 in D3 (facts; paper Sec. V)
     n_probe: int = 100                # F probes per round (facts; paper Alg. 1 names F)
     probe_pool: int = 2000            # uniform points the probes are picked from (facts)
@@ -436,6 +438,8 @@ def _atomic_json(path: str, obj) -> None:
 
 
 def _history_entry(space, state: dict, cov: float, wins, probes, winner) -> dict:
+    """One history record. "round" counts completed rounds (0 = initialisation); entry r holds the territories
+    after refit r, the probes of training round r-1 with their winners, and that round's checkpoints."""
     mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
     return {"round": state["round"], "coverage": cov,
             "mu_unit": mu.tolist(), "sigma_unit": sigma.tolist(),

@@ -62,7 +62,8 @@ def test_ges_unit_roundtrip_and_uniform_sampling():
     (lambda: ges.d2(task="walk"), ["task='walk'"]),
     (lambda: ges.d3(ranges="wide"), ["ranges='wide'"]),
     (lambda: ges.d2(ranges="facts"), ["ranges='facts'", "task"]),
-    (lambda: ges.DesignSpace(("gcr",), (0.9,), (0.8,), {"l_f": .4, "l_t": .4, "spcf": .01}), ["gcr", "low < high"]),
+    (lambda: ges.DesignSpace(("gcr",), (0.9,), (0.8,), {"l_f": .4, "l_t": .4, "spcf": .01}),
+     ["gcr", "low < high"]),
     (lambda: ges.DesignSpace(("gcr",), (0.7,), (0.8,), {"l_f": .4}), ["l_t"]),
     (lambda: ges.GESConfig(K=0), ["K=0", ">= 1"]),
     (lambda: ges.GESConfig(init="kmeans"), ["init='kmeans'", "fps+lloyd"]),
@@ -385,7 +386,8 @@ def test_ges_train_contract_warm_start_territory_and_ties(tmp_path):
         for k in range(3):
             rec = json.load(open(tmp_path / "ckpt" / f"spec{k}_round{r:02d}.ckpt"))
             assert (rec["k"], rec["round"]) == (k, r)
-            assert rec["ckpt_in"] == (None if r == 0 else str(tmp_path / "ckpt" / f"spec{k}_round{r - 1:02d}.ckpt"))
+            prev = str(tmp_path / "ckpt" / f"spec{k}_round{r - 1:02d}.ckpt")
+            assert rec["ckpt_in"] == (None if r == 0 else prev)
             assert rec["mu"] == hist[r]["mu_unit"][k] and rec["sigma"] == hist[r]["sigma_unit"][k]
             seeds.add(rec["seed"])
         assert hist[r + 1]["wins"] == [100, 0, 0]  # all tied -> specialist 0 wins every probe
@@ -406,7 +408,8 @@ def test_ges_contract_violations_are_reported(tmp_path):
     with pytest.raises(ValueError, match="no trained checkpoints"):
         ges.routed_evaluator(ges.load_result(str(tmp_path / "d")), land.score)
     with pytest.raises(ValueError, match="router='best'"):
-        ges.routed_evaluator(_run(tmp_path / "e", land, config=ges.GESConfig(K=3, max_rounds=1)), land.score, "best")
+        one_round = _run(tmp_path / "e", land, config=ges.GESConfig(K=3, max_rounds=1))
+        ges.routed_evaluator(one_round, land.score, "best")
 
 
 def test_ges_sampler_is_picklable_clipped_and_physical():
