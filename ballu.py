@@ -1,0 +1,909 @@
+"""ballu.py -- a batched PyBullet simulator of BALLU for the GES co-design paper.
+
+Read top to bottom:
+  1. settings (`BalluConfig`) and the design vector (l_f, l_t, gcr, spcf)  -- paper Sec. III-B, Table I
+  2. the robot: mass properties and a URDF generated from a design         -- ballu_facts.md "Robot"
+  3. the knee law (spring + tendon PD) and the balloon forces              -- facts "Knee", "Buoyancy and drag"
+  4. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 5)    -- paper Sec. III-C, facts "Tasks"
+  5. `BalluEnv`: N robots in one PyBullet world, one lane each, batched API
+  6. `VecBallu`: W worker processes, each running a `BalluEnv`, same API
+  7. the score J(policy, design) and two scripted controllers (stand, pump)
+  8. command line: --bench, --strip
+
+Every choice says where it comes from: [paper], [facts] (the authors' code read as facts, see
+../shared/ballu_facts.md), or [ours] where both are silent. QUIRKs of the authors' code exist as options,
+off by default.
+
+The batched interface follows Gymnasium's vector-env conventions without importing gymnasium:
+reset(seed=..., options=...) -> (obs, info); step(actions) -> (obs, reward, terminated, truncated, info),
+arrays shaped (num_envs, ...); an episode that ends is reset in the same step and its last observation is
+in info["final_obs"] (rows flagged by info["_final_obs"]).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing as mp
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pybullet
+from pybullet_utils import bullet_client
+
+# ----------------------------------------------------------------------------------------------------------
+# 1. Settings and the design vector
+# ----------------------------------------------------------------------------------------------------------
+DESIGN_NAMES = ("l_f", "l_t", "gcr", "spcf")
+TABLE_I_LOW = np.array([0.25, 0.25, 0.72, 0.001])    # [paper] Table I lower bounds
+TABLE_I_HIGH = np.array([0.55, 0.55, 0.90, 0.100])   # [paper] Table I upper bounds
+BASELINE = np.array([0.45, 0.45, 0.70, 0.002])       # [paper] Table I baseline (gcr outside the bounds)
+# Physical validity (what the simulator can represent at all), wider than any design space. [ours]
+VALID_LOW = np.array([0.05, 0.05, 0.0, 0.0])
+VALID_HIGH = np.array([1.00, 1.00, 0.99, 1.0])
+
+TASKS = ("obstacle", "ramp")
+MAX_LEVEL = 74                                        # [facts] levels 0..74
+SCORE_START_LEVEL = {"obstacle": 28, "ramp": 40}      # [facts] the score J starts here
+
+
+@dataclass
+class BalluConfig:
+    """Everything the simulator needs besides a design. Defaults: [paper] where it says, else [facts]."""
+    task: str = "obstacle"
+    physics_hz: int = 200                 # [paper] Sec. V-A: physics 200 Hz
+    decimation: int = 10                  # [paper] control 20 Hz = 10 physics steps per action
+    episode_steps: int = 400              # [paper] 20 s episodes
+    # densities (kg/m^3) and geometry (m)  [facts]
+    rho_limb: float = 198.85
+    rho_electronics: float = 7585.7
+    rho_balloon: float = 0.4236
+    limb_radius: float = 0.005
+    pelvis_length: float = 0.15
+    hip_y: float = 0.058025
+    electronics_length: float = 0.06
+    foot_radius: float = 0.004
+    foot_offset: float = 0.064            # foot sphere centre past the tibia end
+    balloon_radius: float = 0.32
+    balloon_height: float = 0.70
+    balloon_above_neck: float = 0.38
+    neck_xz: tuple = (0.0044, 0.015)
+    # knee law  [facts]
+    spring_preload: float = math.pi / 4   # tau_spring = -2 k (q + preload) - spring_damping qdot
+    spring_damping: float = 0.001
+    pd_p: float = 1.0
+    pd_d: float = 0.08
+    tau_max: float = 0.0848               # N m, servo torque limit
+    servo_speed: float = 7.48             # rad/s, 60 deg / 0.14 s
+    # balloon  [facts]
+    drag_coef: float = 0.4                # F_d = -sign(v) 0.4 v^2 per world axis
+    quirk_buoyancy_torque: bool = False   # QUIRK: their code adds r x F with r = 0.38 m (doubles the lever arm)
+    gravity: float = 9.81
+    # start pose  [facts]
+    start_hip_deg: float = 1.0
+    start_knee_deg: float = 27.35
+    start_z: float = 1.2
+    # friction  [facts]; robot links get 1.0 so PyBullet's product rule gives the surface's value
+    friction_ground: float = 0.5
+    friction_obstacle: float = 0.5
+    friction_ramp: float = 0.8
+    # rewards  [paper] eq. 5 weights; `reward_form` chooses the paper's terms or the authors' code's
+    w_nav: float = 5.0
+    w_vel: float = 3.0
+    w_jump: float = 1.0
+    c_jump: float = 1.73
+    reward_form: str = "paper"            # "paper": -||g-s||^2 and v_x; "code": max(0,1-0.33 d), capped v_x
+    reward_dt_scale: bool = True          # [facts] Isaac Lab's reward manager multiplies each term by dt
+    # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
+    max_speed: float = 10.0
+    max_z: float = 5.0
+    lane_spacing: float = 4.0             # [ours] metres between lanes (collision filters isolate them anyway)
+    solver_iterations: int = 10           # [ours] PyBullet contact solver iterations (measured stable)
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.physics_hz
+
+    @property
+    def control_dt(self) -> float:
+        return self.decimation / self.physics_hz
+
+
+def check_design(design, low=VALID_LOW, high=VALID_HIGH, what="design") -> np.ndarray:
+    """Return the design(s) as a float array (n, 4); raise ValueError naming the first bad parameter."""
+    d = np.asarray(design, dtype=float)
+    if d.ndim == 1:
+        d = d[None]
+    if d.ndim != 2 or d.shape[1] != 4:
+        raise ValueError(f"{what} must have shape (4,) or (n, 4) = {DESIGN_NAMES}, got {np.shape(design)}")
+    for j, name in enumerate(DESIGN_NAMES):
+        bad = ~np.isfinite(d[:, j]) | (d[:, j] < low[j]) | (d[:, j] > high[j])
+        if bad.any():
+            v = d[np.argmax(bad), j]
+            raise ValueError(f"{what}: {name}={float(v)!r} is outside [{low[j]}, {high[j]}]")
+    return d
+
+
+def normalise_design(design) -> np.ndarray:
+    """theta_m of the observation: Table I bounds mapped to [0, 1] (the baseline's gcr gives -0.11). [ours]"""
+    return (np.asarray(design, dtype=float) - TABLE_I_LOW) / (TABLE_I_HIGH - TABLE_I_LOW)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 2. The robot: mass properties and URDF
+# ----------------------------------------------------------------------------------------------------------
+# Link order in the URDF (PyBullet link index = joint index): the root is the pelvis (-1).
+NECK, HIP_L, KNEE_L, HIP_R, KNEE_R = 0, 1, 2, 3, 4
+BALLOON, FEMUR_L, TIBIA_L, FEMUR_R, TIBIA_R = 0, 1, 2, 3, 4
+KNEES = [KNEE_L, KNEE_R]
+JOINTS = [NECK, HIP_L, HIP_R, KNEE_L, KNEE_R]    # observation order
+TIBIAE = [TIBIA_L, TIBIA_R]
+
+
+def _cyl(m, r, h):
+    """Inertia diagonal of a solid cylinder along z."""
+    return np.array([m * (3 * r * r + h * h) / 12, m * (3 * r * r + h * h) / 12, m * r * r / 2])
+
+
+def mass_properties(design, cfg: BalluConfig = BalluConfig()) -> dict:
+    """Mass, centre of mass (z in the link frame) and inertia diagonal of each link: mass = volume x density.
+
+    The tibia link carries the tibia cylinder, the electronics cylinder at its end and the foot sphere
+    (one rigid body, so no fixed joints cost solver time). [facts]
+    """
+    l_f, l_t = float(design[0]), float(design[1])
+    r = cfg.limb_radius
+    vol = lambda rad, h: math.pi * rad * rad * h
+    out = {}
+    m = vol(r, cfg.pelvis_length) * cfg.rho_limb            # pelvis: cylinder along the hip (y) axis
+    i = _cyl(m, r, cfg.pelvis_length)
+    out["pelvis"] = (m, 0.0, np.array([i[0], i[2], i[0]]))
+    m = vol(cfg.balloon_radius, cfg.balloon_height) * cfg.rho_balloon
+    out["balloon"] = (m, cfg.balloon_above_neck, _cyl(m, cfg.balloon_radius, cfg.balloon_height))
+    m = vol(r, l_f) * cfg.rho_limb
+    out["femur"] = (m, -l_f / 2, _cyl(m, r, l_f))
+    parts = [  # (mass, com z, inertia about own com)
+        (vol(r, l_t) * cfg.rho_limb, -l_t / 2, None),
+        (vol(r, cfg.electronics_length) * cfg.rho_electronics, -l_t - cfg.electronics_length / 2, None),
+        (4 / 3 * math.pi * cfg.foot_radius ** 3 * cfg.rho_limb, -l_t - cfg.foot_offset, None),
+    ]
+    inert = [_cyl(parts[0][0], r, l_t), _cyl(parts[1][0], r, cfg.electronics_length),
+             np.full(3, 0.4 * parts[2][0] * cfg.foot_radius ** 2)]
+    m = sum(p[0] for p in parts)
+    com = sum(p[0] * p[1] for p in parts) / m
+    i = sum(ii + p[0] * (p[1] - com) ** 2 * np.array([1.0, 1.0, 0.0]) for p, ii in zip(parts, inert))
+    out["tibia"] = (m, com, i)
+    out["total"] = out["pelvis"][0] + out["balloon"][0] + 2 * (out["femur"][0] + out["tibia"][0])
+    return out
+
+
+def robot_urdf(design, cfg: BalluConfig = BalluConfig()) -> str:
+    """URDF text for one design: pelvis root; passive neck and hips; spring/tendon knees (torque driven).
+
+    No URDF joint damping: on these tiny inertias it makes PyBullet explode. [facts]
+    """
+    l_f, l_t = float(design[0]), float(design[1])
+    mp_ = mass_properties(design, cfg)
+    r = cfg.limb_radius
+
+    def inertial(name):
+        m, z, i = mp_[name]
+        return (f'<inertial><origin xyz="0 0 {z:.6f}"/><mass value="{m:.8f}"/>'
+                f'<inertia ixx="{i[0]:.6e}" iyy="{i[1]:.6e}" izz="{i[2]:.6e}" ixy="0" ixz="0" iyz="0"/>'
+                f'</inertial>')
+
+    def cyl(z, rad, h, rpy="0 0 0", rgba="0.15 0.15 0.15 1"):
+        g = f'<geometry><cylinder radius="{rad}" length="{h:.6f}"/></geometry>'
+        o = f'<origin xyz="0 0 {z:.6f}" rpy="{rpy}"/>'
+        return (f'<visual>{o}{g}<material name="c{rgba}"><color rgba="{rgba}"/></material></visual>'
+                f"<collision>{o}{g}</collision>")
+
+    def sphere(z, rad):
+        g = f'<geometry><sphere radius="{rad}"/></geometry>'
+        o = f'<origin xyz="0 0 {z:.6f}"/>'
+        return f"<visual>{o}{g}</visual><collision>{o}{g}</collision>"
+
+    def joint(name, parent, child, xyz, lo, hi):
+        return (f'<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
+                f'<origin xyz="{xyz}"/><axis xyz="0 1 0"/>'
+                f'<limit lower="{lo:.6f}" upper="{hi:.6f}" effort="100" velocity="100"/></joint>')
+
+    h90 = math.pi / 2
+    links = [f'<link name="pelvis">{inertial("pelvis")}{cyl(0, r, cfg.pelvis_length, f"{h90} 0 0")}</link>',
+             f'<link name="balloon">{inertial("balloon")}'
+             f'{cyl(cfg.balloon_above_neck, cfg.balloon_radius, cfg.balloon_height, rgba="0.75 0.85 1 1")}</link>']
+    joints = [joint("neck", "pelvis", "balloon", f"{cfg.neck_xz[0]} 0 {cfg.neck_xz[1]}", -h90, h90)]
+    for side, y in (("l", cfg.hip_y), ("r", -cfg.hip_y)):
+        links.append(f'<link name="femur_{side}">{inertial("femur")}{cyl(-l_f / 2, r, l_f)}</link>')
+        tib = (cyl(-l_t / 2, r, l_t) + cyl(-l_t - cfg.electronics_length / 2, r, cfg.electronics_length, rgba="0.8 0.1 0.1 1")
+               + sphere(-l_t - cfg.foot_offset, cfg.foot_radius))
+        links.append(f'<link name="tibia_{side}">{inertial("tibia")}{tib}</link>')
+        joints.append(joint(f"hip_{side}", "pelvis", f"femur_{side}", f"0 {y} 0", -h90, h90))
+        joints.append(joint(f"knee_{side}", f"femur_{side}", f"tibia_{side}", f"0 0 {-l_f:.6f}",
+                            0.0, math.radians(100)))
+    return '<?xml version="1.0"?><robot name="ballu">' + "".join(links) + "".join(joints) + "</robot>"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 3. The knee law and the balloon forces (applied every physics step)
+# ----------------------------------------------------------------------------------------------------------
+def servo_target(action):
+    """Action -> servo angle target m = clip(pi a, 0, pi). [facts]"""
+    return np.clip(math.pi * np.asarray(action, dtype=float), 0.0, math.pi)
+
+
+def knee_torque(q: float, qdot: float, q_star: float, spcf: float, cfg: BalluConfig = BalluConfig()) -> float:
+    """Knee torque of two springs (toward a straight leg) plus a tendon that can only pull. [facts]
+
+    tau_spring = -2 k (q + pi/4) - 0.001 qdot;  tau_pd = max(0, 1.0 (q* - q) - 0.08 qdot);
+    tau = clip(tau_spring + tau_pd, -0.0848, 0.0848).  Plain floats: it runs per knee per physics step.
+    """
+    tau_spring = -2.0 * spcf * (q + cfg.spring_preload) - cfg.spring_damping * qdot
+    tau_pd = max(0.0, cfg.pd_p * (q_star - q) - cfg.pd_d * qdot)
+    return min(cfg.tau_max, max(-cfg.tau_max, tau_spring + tau_pd))
+
+
+def balloon_force(gcr: float, mass: float, vel, cfg: BalluConfig = BalluConfig()) -> list:
+    """Buoyancy gcr*M*g straight up plus drag -sign(v) 0.4 v^2 per world axis, at the balloon centre. [facts]"""
+    c = cfg.drag_coef
+    vx, vy, vz = vel
+    return [-c * vx * abs(vx), -c * vy * abs(vy), gcr * mass * cfg.gravity - c * vz * abs(vz)]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 4. Tasks: terrain, curriculum and rewards
+# ----------------------------------------------------------------------------------------------------------
+def task_geometry(task: str) -> dict:
+    """Terrain start/end, goal x and curriculum thresholds on the final pelvis x. [facts]"""
+    if task == "obstacle":
+        return dict(x0=0.5, x1=1.5, goal=2.0, up=1.0, down=0.5)
+    if task == "ramp":
+        return dict(x0=0.5, x1=2.0, goal=2.5, up=1.70, down=1.295)
+    raise ValueError(f"task={task!r} is not one of {TASKS}")
+
+
+def level_height(task: str, level):
+    """Obstacle height (1 cm per level) or ramp top height (grade +1.33 % per level), metres. [facts]"""
+    return 0.001 + (0.01 if task == "obstacle" else 0.02) * np.asarray(level)
+
+
+def level_score(task: str, level):
+    """Curriculum level -> the score's unit: obstacle height in cm, ramp angle in degrees. [facts]"""
+    h = level_height(task, level)
+    return 100.0 * h if task == "obstacle" else np.degrees(np.arctan(h / 1.5))
+
+
+def curriculum_update(task: str, level, final_x):
+    """Up one level past `up`, down one short of `down`, clipped to 0..74. [facts]"""
+    g = task_geometry(task)
+    level = np.asarray(level) + (np.asarray(final_x) > g["up"]) - (np.asarray(final_x) < g["down"])
+    return np.clip(level, 0, MAX_LEVEL)
+
+
+def surface_height(task: str, x, level):
+    """Height of the terrain under world x in a lane (0 off the obstacle / ramp)."""
+    g, h = task_geometry(task), level_height(task, level)
+    on = (x >= g["x0"]) & (x <= g["x1"])
+    if task == "obstacle":
+        return np.where(on, h, 0.0)
+    return np.where(on, h * (x - g["x0"]) / (g["x1"] - g["x0"]), 0.0)
+
+
+def reward(task, cfg: BalluConfig, x, y_rel, vx, toe_clearance):
+    """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 5]; ramp: w1 r_nav + w2 r_vel.
+
+    reward_form="paper" (default): r_nav = -||g - s||^2 in the ground plane, r_vel = v_x.
+    reward_form="code": r_nav = max(0, 1 - 0.33 ||g - s||), r_vel = v_x capped (0 above 0.8 m/s, e^v - 1
+    below 0) as in the authors' code.
+    """
+    goal = task_geometry(task)["goal"]
+    dist2 = (goal - x) ** 2 + y_rel ** 2
+    if cfg.reward_form == "paper":
+        r_nav, r_vel = -dist2, vx
+    elif cfg.reward_form == "code":
+        r_nav = np.maximum(0.0, 1.0 - 0.33 * np.sqrt(dist2))
+        r_vel = np.where(vx > 0.8, 0.0, np.where(vx < 0, np.expm1(np.minimum(vx, 0.0)), vx))
+    else:
+        raise ValueError(f"reward_form={cfg.reward_form!r} is not one of ('paper', 'code')")
+    r = cfg.w_nav * r_nav + cfg.w_vel * r_vel
+    if task == "obstacle":
+        r = r + cfg.w_jump * np.expm1(cfg.c_jump * toe_clearance)
+    return r * (cfg.control_dt if cfg.reward_dt_scale else 1.0)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 5. BalluEnv: N robots in one world, one lane each
+# ----------------------------------------------------------------------------------------------------------
+OBS_NAMES = (["vx", "vy", "vz", "wx", "wy", "wz"] + [f"q_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
+             + [f"qd_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
+             + ["a_l", "a_r", "dist_to_terrain", "terrain_height"] + [f"design_{n}" for n in DESIGN_NAMES])
+OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
+
+
+class BalluEnv:
+    """N BALLU robots stepped together in one PyBullet world (DIRECT mode, no GUI).
+
+    Lane i lies along world x at y = i * lane_spacing with its own terrain body; collision filter groups
+    keep every lane's robot and terrain apart from all other lanes (they share only the ground plane).
+    Each lane has its own design, curriculum level and random generator (seeded from (seed, lane id)),
+    so a lane's trajectory does not depend on how many other lanes there are.
+
+    Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training), else a
+    lane keeps its design (scoring). With `curriculum=True` each finished episode moves the lane's level.
+    """
+
+    def __init__(self, num_envs: int = 1, cfg: BalluConfig = BalluConfig(), lane_ids=None,
+                 curriculum: bool = True, design_sampler=None):
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs={num_envs!r} must be an integer >= 1")
+        task_geometry(cfg.task)
+        self.cfg, self.num_envs, self.curriculum = cfg, int(num_envs), curriculum
+        self.design_sampler = design_sampler
+        self.lane_ids = np.arange(num_envs) if lane_ids is None else np.asarray(lane_ids)
+        self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
+        self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        self.cid = self.p._client
+        self._tmp = tempfile.TemporaryDirectory(prefix="ballu_urdf_")
+        self._build_world()
+        n = self.num_envs
+        self.designs = np.tile(BASELINE, (n, 1))
+        self.levels = np.zeros(n, dtype=np.int64)
+        self.bodies = [-1] * n
+        self.terrain = [-1] * n
+        self._terrain_level = np.full(n, -1)
+        self._body_design = [None] * n
+        # per-lane state of the hot loop as plain Python floats (see _physics_step)
+        self._servo = [[0.0, 0.0] for _ in range(n)]        # servo horn angle m (rad)
+        self._servo_goal = [[0.0, 0.0] for _ in range(n)]
+        self._mass, self._gcr, self._spcf = [0.0] * n, [0.0] * n, [0.0] * n
+        self.last_action = np.zeros((n, 2))
+        self.t = np.zeros(n, dtype=np.int64)
+        self.ep_return = np.zeros(n)
+        self.rngs = [np.random.default_rng(0) for _ in range(n)]
+        self._ready = False
+        self.sim_seconds = 0.0
+
+    # -- world -------------------------------------------------------------------------------------------
+    def _build_world(self):
+        p, cfg = self.p, self.cfg
+        p.setGravity(0, 0, -cfg.gravity)
+        p.setPhysicsEngineParameter(fixedTimeStep=cfg.dt, numSubSteps=0, numSolverIterations=cfg.solver_iterations,
+                                    deterministicOverlappingPairs=1)
+        plane = p.createCollisionShape(p.GEOM_PLANE)
+        self.plane = p.createMultiBody(0, plane)
+        p.changeDynamics(self.plane, -1, lateralFriction=cfg.friction_ground)
+        p.setCollisionFilterGroupMask(self.plane, -1, 1, 0x3FFFFFFF)
+        self._box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.5, 1.0, 0.5])
+        self._box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.5, 1.0, 0.5], rgbaColor=[0.6, 0.45, 0.3, 1])
+        self._ramp_shapes = {}
+
+    def _lane_bit(self, i):
+        return 1 << (1 + int(self.lane_ids[i]) % 29)
+
+    def _lane_y(self, i):
+        return float(self.lane_ids[i]) * self.cfg.lane_spacing
+
+    def _set_terrain(self, i, level):
+        """Place lane i's terrain for `level`: the obstacle box is moved; a ramp wedge is rebuilt."""
+        if self._terrain_level[i] == level:
+            return
+        p, cfg, y = self.p, self.cfg, self._lane_y(i)
+        h = float(level_height(cfg.task, level))
+        if cfg.task == "obstacle":
+            if self.terrain[i] < 0:
+                self.terrain[i] = p.createMultiBody(0, self._box_shape, self._box_visual, basePosition=[1.0, y, h - 0.5])
+                p.changeDynamics(self.terrain[i], -1, lateralFriction=cfg.friction_obstacle)
+                p.setCollisionFilterGroupMask(self.terrain[i], -1, self._lane_bit(i), self._lane_bit(i))
+            else:
+                p.resetBasePositionAndOrientation(self.terrain[i], [1.0, y, h - 0.5], [0, 0, 0, 1])
+        else:
+            if level not in self._ramp_shapes:   # a wedge rising from x=0.5 to 2.0, then a vertical drop
+                v = [[0.5, -1, 0], [2.0, -1, 0], [2.0, -1, h], [0.5, 1, 0], [2.0, 1, 0], [2.0, 1, h]]
+                tri = [0, 1, 2, 3, 5, 4, 0, 3, 4, 0, 4, 1, 1, 4, 5, 1, 5, 2, 0, 2, 5, 0, 5, 3]
+                self._ramp_shapes[level] = (p.createCollisionShape(p.GEOM_MESH, vertices=v),
+                                            p.createVisualShape(p.GEOM_MESH, vertices=v, indices=tri,
+                                                                rgbaColor=[0.6, 0.45, 0.3, 1]))
+            if self.terrain[i] >= 0:
+                p.removeBody(self.terrain[i])
+            self.terrain[i] = p.createMultiBody(0, *self._ramp_shapes[level], basePosition=[0, y, 0])
+            p.changeDynamics(self.terrain[i], -1, lateralFriction=cfg.friction_ramp)
+            p.setCollisionFilterGroupMask(self.terrain[i], -1, self._lane_bit(i), self._lane_bit(i))
+        self._terrain_level[i] = level
+
+    def _load_robot(self, i, design):
+        """(Re)load lane i's robot when its design changed, else reset its pose; zero the servo state."""
+        p, cfg = self.p, self.cfg
+        y = self._lane_y(i)
+        hip, knee = math.radians(cfg.start_hip_deg), math.radians(cfg.start_knee_deg)
+        if self._body_design[i] is None or not np.array_equal(self._body_design[i], design):
+            if self.bodies[i] >= 0:
+                p.removeBody(self.bodies[i])
+            path = os.path.join(self._tmp.name, f"lane{i}.urdf")
+            with open(path, "w") as f:
+                f.write(robot_urdf(design, cfg))
+            b = p.loadURDF(path, [0, y, cfg.start_z], flags=p.URDF_USE_INERTIA_FROM_FILE)
+            for link in range(-1, 5):
+                p.changeDynamics(b, link, lateralFriction=1.0, linearDamping=0.0, angularDamping=0.0,
+                                 jointDamping=0.0)
+                p.setCollisionFilterGroupMask(b, link, self._lane_bit(i), 1 | self._lane_bit(i))
+            p.setJointMotorControlArray(b, JOINTS, p.VELOCITY_CONTROL, forces=[0.0] * 5)
+            self.bodies[i], self._body_design[i] = b, design.copy()
+        self._mass[i] = mass_properties(design, cfg)["total"]
+        self._gcr[i], self._spcf[i] = float(design[2]), float(design[3])
+        b = self.bodies[i]
+        p.resetBasePositionAndOrientation(b, [0, y, cfg.start_z], [0, 0, 0, 1])
+        p.resetBaseVelocity(b, [0, 0, 0], [0, 0, 0])
+        for j, q in ((NECK, 0.0), (HIP_L, hip), (HIP_R, hip), (KNEE_L, knee), (KNEE_R, knee)):
+            p.resetJointState(b, j, q, 0.0)
+        # The servo starts where the knee is, so the first step has no jerk. [ours]
+        m0 = knee * 180.0 / 100.0
+        self._servo[i], self._servo_goal[i] = [m0, m0], [m0, m0]
+        self.last_action[i] = m0 / math.pi
+
+    def _reset_lane(self, i):
+        if self.design_sampler is not None:
+            d = np.asarray(self.design_sampler(self.rngs[i], 1), dtype=float).reshape(4)
+            self.designs[i] = check_design(d, what="design_sampler output")[0]
+        self._set_terrain(i, int(self.levels[i]))
+        self._load_robot(i, self.designs[i])
+        self.t[i] = 0
+        self.ep_return[i] = 0.0
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """Reset all lanes. options: 'designs' (N,4) or (4,), 'levels' (N,) or int, 'design_sampler'."""
+        options = options or {}
+        if seed is not None:
+            self.rngs = [np.random.default_rng([int(seed), int(k)]) for k in self.lane_ids]
+        if "design_sampler" in options:
+            self.design_sampler = options["design_sampler"]
+        if options.get("designs") is not None:
+            d = check_design(options["designs"], what="options['designs']")
+            self.designs = np.broadcast_to(d, (self.num_envs, 4)).copy()
+        if options.get("levels") is not None:
+            lv = np.broadcast_to(np.asarray(options["levels"], dtype=np.int64), (self.num_envs,)).copy()
+            if lv.min() < 0 or lv.max() > MAX_LEVEL:
+                raise ValueError(f"levels must lie in [0, {MAX_LEVEL}], got {lv.min()}..{lv.max()}")
+            self.levels = lv
+        for i in range(self.num_envs):
+            self._reset_lane(i)
+        self._ready = True
+        return self._observe(), {"levels": self.levels.copy(), "designs": self.designs.copy()}
+
+    # -- the hot loop ------------------------------------------------------------------------------------
+    def _physics_step(self):
+        """One 200 Hz step: per robot, read knees and balloon, apply knee torques and balloon forces; step.
+
+        Two PyBullet calls per robot to read and two to write, on the module with the client id (the
+        BulletClient wrapper costs more per call than the calls themselves); the per-robot arithmetic is on
+        plain floats, which beats numpy dispatch at these sizes.
+        """
+        cfg, cid = self.cfg, self.cid
+        get_joints, get_link, apply, control = (pybullet.getJointStates, pybullet.getLinkState,
+                                                pybullet.applyExternalForce, pybullet.setJointMotorControlArray)
+        world, torque_mode = pybullet.WORLD_FRAME, pybullet.TORQUE_CONTROL
+        slew = cfg.servo_speed * cfg.dt
+        ratio = 100.0 / 180.0
+        for i, b in enumerate(self.bodies):
+            (q_l, qd_l, _, _), (q_r, qd_r, _, _) = get_joints(b, KNEES, physicsClientId=cid)
+            ls = get_link(b, BALLOON, 1, physicsClientId=cid)
+            servo, goal = self._servo[i], self._servo_goal[i]
+            servo[0] += min(slew, max(-slew, goal[0] - servo[0]))   # the servo horn moves at <= 7.48 rad/s
+            servo[1] += min(slew, max(-slew, goal[1] - servo[1]))
+            k = self._spcf[i]
+            tau = [knee_torque(q_l, qd_l, servo[0] * ratio, k, cfg), knee_torque(q_r, qd_r, servo[1] * ratio, k, cfg)]
+            force = balloon_force(self._gcr[i], self._mass[i], ls[6], cfg)
+            apply(b, BALLOON, force, ls[0], world, physicsClientId=cid)
+            control(b, KNEES, torque_mode, forces=tau, physicsClientId=cid)
+            if cfg.quirk_buoyancy_torque:   # QUIRK: r x F with r = 0.38 m straight up, at the balloon
+                r = cfg.balloon_above_neck
+                pybullet.applyExternalTorque(b, BALLOON, [-r * force[1], r * force[0], 0.0], world,
+                                             physicsClientId=cid)
+        t0 = time.perf_counter()
+        pybullet.stepSimulation(physicsClientId=cid)
+        self.sim_seconds += time.perf_counter() - t0   # for the benchmark's raw-physics reference
+
+    def _read_state(self):
+        """Per-lane state for observation, reward and limits (a few PyBullet calls per robot)."""
+        p, n = self.p, self.num_envs
+        pos = np.zeros((n, 3))
+        vel = np.zeros((n, 6))
+        jq = np.zeros((n, 5))
+        jqd = np.zeros((n, 5))
+        toe = np.zeros((n, 2, 3))
+        L = self.designs[:, 1] + self.cfg.foot_offset + self.cfg.foot_radius  # knee to the foot's tip
+        for i, b in enumerate(self.bodies):
+            pos[i] = p.getBasePositionAndOrientation(b)[0]
+            lin, ang = p.getBaseVelocity(b)
+            vel[i, :3], vel[i, 3:] = lin, ang
+            for k, s in enumerate(p.getJointStates(b, JOINTS)):
+                jq[i, k], jqd[i, k] = s[0], s[1]
+            for k, ls in enumerate(p.getLinkStates(b, TIBIAE)):
+                # foot tip = link frame origin (knee) + R (0, 0, -L): the third column of R times -L
+                x, y, z, w = ls[5]
+                toe[i, k] = np.array(ls[4]) - L[i] * np.array([2 * (x * z + w * y), 2 * (y * z - w * x),
+                                                               1 - 2 * (x * x + y * y)])
+        return pos, vel, jq, jqd, toe
+
+    def _observe(self, state=None):
+        pos, vel, jq, jqd, toe = self._read_state() if state is None else state
+        g = task_geometry(self.cfg.task)
+        cue = np.stack([g["x0"] - pos[:, 0], level_height(self.cfg.task, self.levels)], axis=1)
+        return np.concatenate([vel, jq, jqd, self.last_action, cue, normalise_design(self.designs)],
+                              axis=1).astype(np.float32)
+
+    def step(self, actions):
+        if not self._ready:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(actions, dtype=float)
+        if a.shape != (self.num_envs, ACT_DIM):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {ACT_DIM}), got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError("actions contain non-finite values (NaN or inf)")
+        self._servo_goal = servo_target(a).tolist()
+        self.last_action[:] = a
+        for _ in range(self.cfg.decimation):
+            self._physics_step()
+        self.t += 1
+        state = self._read_state()
+        pos, vel, _, _, toe = state
+        cfg, task = self.cfg, self.cfg.task
+        y_rel = pos[:, 1] - self.lane_ids * cfg.lane_spacing
+        clearance = toe[:, :, 2] - surface_height(task, toe[:, :, 0], self.levels[:, None])
+        rew = reward(task, cfg, pos[:, 0], y_rel, vel[:, 0], clearance.min(axis=1))
+        finite = np.isfinite(pos).all(1) & np.isfinite(vel).all(1) & np.isfinite(rew)
+        blowup = ~finite | (np.linalg.norm(np.nan_to_num(vel[:, :3], nan=1e9), axis=1) > cfg.max_speed) \
+            | (np.nan_to_num(pos[:, 2], nan=1e9) > cfg.max_z)
+        rew = np.where(finite, rew, 0.0)
+        self.ep_return += rew
+        terminated = blowup
+        truncated = (self.t >= cfg.episode_steps) & ~terminated
+        obs = self._observe(state)
+        done = terminated | truncated
+        # info always holds every key (rows of unfinished lanes masked by "_final_obs"), so worker
+        # processes' infos concatenate without special cases.
+        info = {"final_obs": np.where(done[:, None], obs, 0.0).astype(np.float32), "_final_obs": done,
+                "final_x": np.where(done, pos[:, 0], np.nan),
+                "episode_return": np.where(done, self.ep_return, np.nan),
+                "episode_level": self.levels.copy(), "blowup": blowup}
+        if done.any():
+            if self.curriculum:   # a blown-up episode does not move the level (it says nothing of skill)
+                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]))
+                self.levels = np.where(truncated, moved, self.levels)
+            for i in np.flatnonzero(done):
+                if blowup[i]:
+                    self._body_design[i] = None   # reload a blown-up robot from scratch
+                self._reset_lane(i)
+            fresh = self._observe()
+            obs[done] = fresh[done]
+        info["levels"] = self.levels.copy()      # the level each lane plays next
+        return obs, rew.astype(np.float32), terminated, truncated, info
+
+    def close(self):
+        if getattr(self, "p", None) is not None:
+            self.p.disconnect()
+            self.p = None
+            self._tmp.cleanup()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 6. VecBallu: W worker processes behind the same interface
+# ----------------------------------------------------------------------------------------------------------
+def _worker(conn, num_envs, cfg, lane_ids, curriculum):
+    """Serve one BalluEnv over a pipe; exceptions travel back as ('error', text)."""
+    import traceback
+    env = None
+    try:
+        env = BalluEnv(num_envs, cfg, lane_ids=lane_ids, curriculum=curriculum)
+        while True:
+            cmd, arg = conn.recv()
+            if cmd == "close":
+                break
+            try:
+                if cmd == "step":
+                    out = env.step(arg)
+                elif cmd == "reset":
+                    out = env.reset(**arg)
+                elif cmd == "set":
+                    setattr(env, arg[0], arg[1])
+                    out = None
+                elif cmd == "get":
+                    out = getattr(env, arg)
+                elif cmd == "call":
+                    out = getattr(env, arg[0])(*arg[1])
+                else:
+                    raise ValueError(f"unknown command {cmd!r}")
+                conn.send(("ok", out))
+            except Exception:
+                conn.send(("error", traceback.format_exc()))
+    except (EOFError, KeyboardInterrupt):
+        pass
+    finally:
+        if env is not None:
+            env.close()
+
+
+class VecBallu:
+    """`num_envs` lanes split over `workers` processes (one BalluEnv each); same interface as BalluEnv.
+
+    Lane ids are global, so a lane's random generator and trajectory do not depend on the worker count.
+    A worker that dies raises RuntimeError in the caller instead of hanging.
+    """
+
+    def __init__(self, num_envs: int, workers: int = 2, cfg: BalluConfig = BalluConfig(),
+                 curriculum: bool = True, design_sampler=None, timeout: float = 600.0):
+        if not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise ValueError(f"workers={workers!r} must be an integer >= 1")
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < workers:
+            raise ValueError(f"num_envs={num_envs!r} must be an integer >= workers={workers}")
+        task_geometry(cfg.task)
+        self.num_envs, self.cfg, self.timeout = int(num_envs), cfg, timeout
+        self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
+        self.splits = np.array_split(np.arange(num_envs), workers)
+        ctx = mp.get_context("spawn")   # no fork: the parent may hold torch threads
+        self.conns, self.procs = [], []
+        for ids in self.splits:
+            a, b = ctx.Pipe()
+            proc = ctx.Process(target=_worker, args=(b, len(ids), cfg, ids, curriculum), daemon=True)
+            proc.start()
+            b.close()
+            self.conns.append(a)
+            self.procs.append(proc)
+        if design_sampler is not None:
+            self.set_design_sampler(design_sampler)
+
+    def _recv(self, k):
+        conn, proc = self.conns[k], self.procs[k]
+        t0 = time.monotonic()
+        while not conn.poll(0.5):
+            if not proc.is_alive():
+                raise RuntimeError(f"BALLU worker {k} died (exit code {proc.exitcode})")
+            if time.monotonic() - t0 > self.timeout:
+                raise RuntimeError(f"BALLU worker {k} did not answer within {self.timeout} s")
+        try:
+            status, out = conn.recv()
+        except (EOFError, OSError):
+            proc.join(timeout=1)
+            raise RuntimeError(f"BALLU worker {k} died (exit code {proc.exitcode})") from None
+        if status == "error":
+            raise RuntimeError(f"BALLU worker {k} failed:\n{out}")
+        return out
+
+    def _all(self, cmd, args):
+        for conn, arg in zip(self.conns, args):
+            try:
+                conn.send((cmd, arg))
+            except (BrokenPipeError, OSError):
+                pass   # _recv reports the dead worker
+        return [self._recv(k) for k in range(len(self.conns))]
+
+    def _split(self, x):
+        return [None if x is None else np.asarray(x)[ids] for ids in self.splits]
+
+    def set_design_sampler(self, sampler):
+        self._all("set", [("design_sampler", sampler)] * len(self.conns))
+
+    @property
+    def levels(self):
+        return np.concatenate(self._all("get", ["levels"] * len(self.conns)))
+
+    @property
+    def sim_seconds(self):
+        return np.array(self._all("get", ["sim_seconds"] * len(self.conns)))
+
+    @property
+    def designs(self):
+        return np.concatenate(self._all("get", ["designs"] * len(self.conns)))
+
+    def reset(self, seed=None, options=None):
+        options = dict(options or {})
+        per = []
+        for k, ids in enumerate(self.splits):
+            o = dict(options)
+            for key in ("designs", "levels"):
+                if o.get(key) is not None and np.ndim(o[key]) > (1 if key == "designs" else 0):
+                    o[key] = np.asarray(o[key])[ids]
+            per.append({"seed": seed, "options": o})
+        outs = self._all("reset", per)
+        return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
+
+    def step(self, actions):
+        a = np.asarray(actions, dtype=float)
+        if a.shape != (self.num_envs, ACT_DIM):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {ACT_DIM}), got {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError("actions contain non-finite values (NaN or inf)")
+        outs = self._all("step", self._split(a))
+        return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
+
+    def close(self):
+        for conn in self.conns:
+            try:
+                conn.send(("close", None))
+            except (BrokenPipeError, OSError):
+                pass
+        for proc in self.procs:
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.terminate()
+        self.conns, self.procs = [], []
+
+    def __del__(self):
+        if getattr(self, "procs", None):
+            self.close()
+
+
+def _merge(infos):
+    return {k: np.concatenate([np.asarray(i[k]) for i in infos]) for k in infos[0]}
+
+
+def make_env(num_envs: int, workers: int = 1, cfg: BalluConfig = BalluConfig(), **kw):
+    """A BalluEnv in this process for one worker, else a VecBallu with `workers` processes."""
+    return BalluEnv(num_envs, cfg, **kw) if workers == 1 else VecBallu(num_envs, workers, cfg, **kw)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. The score J(policy, design, task) and scripted controllers
+# ----------------------------------------------------------------------------------------------------------
+def stand(obs):
+    """Scripted floor 1: zero action (servo released, springs hold the knees straight)."""
+    return np.zeros((len(obs), ACT_DIM))
+
+
+class PumpGait:
+    """Scripted floor 2: both knees pulled fully for half a period, released for the other half.
+
+    `period` is in control steps (20 Hz), a scalar or one per lane, so one scoring run can sweep periods.
+    The phase is a call counter: all lanes of a scoring run start their episodes together.
+    """
+
+    def __init__(self, period=10, amplitude: float = 1.0):
+        self.period = np.asarray(period, dtype=float)
+        if (self.period < 2).any():
+            raise ValueError(f"period={period!r} must be >= 2 control steps")
+        self.amplitude, self.t = amplitude, 0
+
+    def __call__(self, obs):
+        on = (self.t % self.period) < self.period / 2
+        self.t += 1
+        return np.broadcast_to(np.where(on, self.amplitude, 0.0)[..., None], (len(obs), ACT_DIM)).copy()
+
+
+def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_level: int | None = None,
+          workers: int = 1, cfg: BalluConfig | None = None, max_lanes: int = 256, progress=None) -> np.ndarray:
+    """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
+
+    The policy (any callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy) plays
+    `episodes` episodes per design; the level after the last one is the score, in cm (obstacle) or degrees
+    (ramp). [facts]
+    """
+    cfg = replace(cfg or BalluConfig(), task=task)
+    d = check_design(designs, what="designs")
+    start = SCORE_START_LEVEL[task] if start_level is None else start_level
+    if episodes < 1:
+        raise ValueError(f"episodes={episodes!r} must be >= 1")
+    out = np.zeros(len(d))
+    for c0 in range(0, len(d), max_lanes):
+        chunk = d[c0:c0 + max_lanes]
+        n = len(chunk)
+        env = make_env(n, min(workers, n), cfg, curriculum=True)
+        try:
+            obs, _ = env.reset(seed=0, options={"designs": chunk, "levels": np.full(n, start)})
+            count = np.zeros(n, dtype=int)
+            final = np.full(n, -1)
+            while (count < episodes).any():
+                obs, _, _, _, info = env.step(policy(obs))
+                done = info["_final_obs"]
+                count += done
+                hit = done & (count == episodes)
+                final[hit] = info["levels"][hit]
+                if progress and done.any():
+                    progress(f"score {task}: {int(np.minimum(count, episodes).sum())}/{n * episodes} episodes")
+        finally:
+            env.close()
+        out[c0:c0 + n] = level_score(task, final)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 8. Command line: motion strip and benchmark
+# ----------------------------------------------------------------------------------------------------------
+def motion_strip(path, policy=None, task="obstacle", level=30, design=BASELINE, frames=8, cfg=None,
+                 width=360, height=300):
+    """Play one episode with PyBullet's CPU renderer and save `frames` side views as one PNG (paper Fig. 1)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    cfg = replace(cfg or BalluConfig(), task=task)
+    env = BalluEnv(1, cfg, curriculum=False)
+    policy = policy or PumpGait(12)
+    obs, _ = env.reset(seed=0, options={"designs": design, "levels": level})
+    keep = set(np.linspace(0, cfg.episode_steps - 1, frames).astype(int).tolist())
+    shots, xs = [], []
+    p, b = env.p, env.bodies[0]
+    g = task_geometry(task)
+    for t in range(cfg.episode_steps):
+        if t in keep:
+            x = p.getBasePositionAndOrientation(b)[0][0]
+            view = p.computeViewMatrix([x, -3.2, 0.9], [x, 0, 0.7], [0, 0, 1])
+            proj = p.computeProjectionMatrixFOV(50, width / height, 0.1, 10)
+            img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
+                                   lightDirection=[-1, -2, 3], shadow=0)[2]
+            shots.append(np.reshape(img, (height, width, 4))[:, :, :3])
+            xs.append(x)
+        obs, *_, info = env.step(policy(obs))
+    env.close()
+    fig, axes = plt.subplots(1, frames, figsize=(2.2 * frames, 2.4))
+    for ax, im, t, x in zip(axes, shots, sorted(keep), xs):
+        ax.imshow(im)
+        ax.set_title(f"t={t * cfg.control_dt:.1f}s  x={x:.2f}m", fontsize=8)
+        ax.axis("off")
+    h = level_score(task, level)
+    unit = "cm obstacle" if task == "obstacle" else "deg ramp"
+    fig.suptitle(f"BALLU {task}, level {level} ({h:.1f} {unit}), design l_f,l_t,gcr,spcf = "
+                 f"{np.round(np.asarray(design, float), 4).tolist()}; terrain x {g['x0']}..{g['x1']} m, "
+                 f"goal x {g['goal']} m", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def bench(lanes: int = 16, workers: int = 2, control_steps: int = 400):
+    """Robot-physics-steps/s of the env (1 lane, N lanes, W workers) next to its own bare physics.
+
+    The reference is measured in the same run and the same world: the time spent inside stepSimulation
+    alone (no per-step Python work), so ratio = env rate / raw rate is the share of time that is physics.
+    """
+    rng = np.random.default_rng(0)
+    rows = []
+    for n, w in ((1, 1), (lanes, 1), (lanes, workers)):
+        env = make_env(n, w)
+        env.reset(seed=0, options={"designs": BASELINE, "levels": 10})
+        sim0 = np.sum(env.sim_seconds)
+        t0 = time.perf_counter()
+        for _ in range(control_steps):
+            env.step(rng.uniform(0, 1, (n, 2)))
+        wall = time.perf_counter() - t0
+        sim = np.max(np.asarray(env.sim_seconds)) if w > 1 else env.sim_seconds - sim0
+        env.close()
+        steps = control_steps * n * BalluConfig().decimation
+        rows.append((f"{n} lane(s), {w} process(es)", steps / sim, steps / wall))
+    print(f"{'configuration':28s} {'raw stepSimulation':>19s} {'env, all per-step work':>23s} {'ratio':>6s}")
+    for name, raw, rate in rows:
+        print(f"{name:28s} {raw:16,.0f}/s {rate:20,.0f}/s {rate / raw:6.2f}")
+    print(f"{workers} workers vs 1 process, {lanes} lanes: {rows[2][2] / rows[1][2]:.2f}x   "
+          f"(robot-physics-steps per second at 200 Hz; raw = steps / time inside stepSimulation)")
+    return rows
+
+
+def _main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bench", action="store_true", help="print simulator throughput")
+    ap.add_argument("--lanes", type=int, default=16)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--strip", metavar="PNG", help="write a motion strip of one episode")
+    ap.add_argument("--task", default="obstacle", choices=TASKS)
+    ap.add_argument("--level", type=int, default=30)
+    ap.add_argument("--design", type=float, nargs=4, default=BASELINE.tolist(), metavar=DESIGN_NAMES)
+    ap.add_argument("--policy", metavar="CKPT", help="a ppo.py checkpoint (default: the pump gait)")
+    ap.add_argument("--period", type=int, default=12, help="pump gait period in control steps")
+    args = ap.parse_args(argv)
+    if args.bench:
+        bench(args.lanes, args.workers)
+    if args.strip:
+        check_design(args.design, what="--design")
+        if not 0 <= args.level <= MAX_LEVEL:
+            raise SystemExit(f"--level={args.level} must lie in [0, {MAX_LEVEL}]")
+        policy = PumpGait(args.period)
+        if args.policy:
+            import ppo
+            policy = ppo.load_policy(args.policy)
+        print("wrote", motion_strip(args.strip, policy, args.task, args.level, np.array(args.design)))
+    if not (args.bench or args.strip):
+        ap.print_help()
+
+
+if __name__ == "__main__":
+    _main()
