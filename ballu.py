@@ -313,6 +313,28 @@ def reward(task, cfg: BalluConfig, x, y_rel, vx, toe_clearance):
     return r * (cfg.control_dt if cfg.reward_dt_scale else 1.0)
 
 
+class FixedDesign:
+    """A design sampler that always returns one design (training a per-design policy)."""
+
+    def __init__(self, design):
+        self.design = check_design(design)[0]
+
+    def __call__(self, rng, n):
+        return np.tile(self.design, (n, 1))
+
+
+class UniformDesign:
+    """A design sampler uniform over a box of (l_f, l_t, gcr, spcf); equal low/high pins a parameter."""
+
+    def __init__(self, low, high):
+        self.low, self.high = check_design(low)[0], check_design(high)[0]
+        if (self.low > self.high).any():
+            raise ValueError(f"low={self.low.tolist()} must not exceed high={self.high.tolist()}")
+
+    def __call__(self, rng, n):
+        return self.low + (self.high - self.low) * rng.uniform(size=(n, 4))
+
+
 # ----------------------------------------------------------------------------------------------------------
 # 5. BalluEnv: N robots in one world, one lane each
 # ----------------------------------------------------------------------------------------------------------
@@ -450,6 +472,9 @@ class BalluEnv:
         self._load_robot(i, self.designs[i])
         self.t[i] = 0
         self.ep_return[i] = 0.0
+
+    def set_design_sampler(self, sampler):
+        self.design_sampler = sampler
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         """Reset all lanes. options: 'designs' (N,4) or (4,), 'levels' (N,) or int, 'design_sampler'."""

@@ -1,0 +1,517 @@
+"""ppo.py -- PPO from scratch in torch, with the MLP and MoE actor-critics of the GES paper.
+
+Read top to bottom:
+  1. settings (`PPOConfig`)                         -- ballu_facts.md "PPO as they ran it"
+  2. running observation normalisation
+  3. actor-critics: `MLPActorCritic` (e2e MLP and every GES specialist), `MoEActorCritic` (e2e MoE)
+  4. GAE and the PPO update (clipped surrogate, value loss, entropy bonus, adaptive-KL learning rate)
+  5. `train(...)`: rollouts on any batched env, curriculum, checkpoints, CSV log, learning curve
+  6. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
+  7. command line: --bench, --train
+
+The env is anything with the batched interface of ballu.py: `num_envs`, `obs_dim`, `act_dim`,
+`reset(seed=, options=) -> (obs, info)` and `step(actions) -> (obs, reward, terminated, truncated, info)` with
+the last observation of finished episodes in info["final_obs"] (rows flagged by info["_final_obs"]).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+import torch.nn as nn
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 1. Settings
+# ----------------------------------------------------------------------------------------------------------
+@dataclass
+class PPOConfig:
+    """PPO settings: [facts] = the authors' runs (ballu_facts.md), [ours] = adapted to a 2-core CPU."""
+    hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
+    init_std: float = 0.5              # [facts] initial action std (state independent)
+    lr: float = 1e-4                   # [facts] initial learning rate, then adaptive KL
+    desired_kl: float = 0.01           # [facts] adaptive-KL target
+    clip: float = 0.2                  # [facts]
+    entropy_coef: float = 0.01         # [facts]
+    value_coef: float = 1.0            # [ours] (rsl_rl's default)
+    epochs: int = 5                    # [facts]
+    minibatches: int = 4               # [facts]
+    gamma: float = 0.99                # [facts]
+    lam: float = 0.95                  # [facts]
+    max_grad_norm: float = 0.5         # [facts]
+    num_envs: int = 32                 # [ours] they ran 4096 envs x 20 steps on a GPU
+    num_steps: int = 64                # [ours] rollout length per env and update
+    obs_clip: float = 5.0              # [ours] clip of the normalised observation
+    moe_experts: int = 6               # [facts] e2e MoE: 6 experts
+    gate_hidden: tuple = (64, 32)      # [facts] gate MLP on the design vector
+    load_balance_coef: float = 0.01    # [facts] load-balance loss weight
+    design_dim: int = 4                # the design vector is the last 4 observation entries (ballu.py)
+    ckpt_every: int = 10               # [ours] iterations between checkpoints
+
+    @property
+    def batch(self) -> int:
+        return self.num_envs * self.num_steps
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 2. Running observation normalisation (stored in the checkpoint)
+# ----------------------------------------------------------------------------------------------------------
+class RunningNorm:
+    """Mean and variance over every observation seen so far (parallel Welford update)."""
+
+    def __init__(self, dim: int, clip: float = 5.0):
+        self.mean, self.var, self.count, self.clip = np.zeros(dim), np.ones(dim), 1e-4, clip
+
+    def update(self, x: np.ndarray):
+        m, v, n = x.mean(0), x.var(0), len(x)
+        delta, tot = m - self.mean, self.count + n
+        self.mean = self.mean + delta * n / tot
+        self.var = (self.var * self.count + v * n + delta ** 2 * self.count * n / tot) / tot
+        self.count = tot
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return np.clip((x - self.mean) / np.sqrt(self.var + 1e-8), -self.clip, self.clip).astype(np.float32)
+
+    def state(self) -> dict:
+        return {"mean": torch.tensor(self.mean), "var": torch.tensor(self.var), "count": float(self.count)}
+
+    def load(self, s: dict):
+        self.mean, self.var, self.count = s["mean"].numpy().copy(), s["var"].numpy().copy(), float(s["count"])
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 3. Actor-critics
+# ----------------------------------------------------------------------------------------------------------
+def mlp(sizes, out_gain=1.0) -> nn.Sequential:
+    """ELU MLP with orthogonal init (gain sqrt(2) inside, `out_gain` on the last layer), zero biases."""
+    layers = []
+    for i in range(len(sizes) - 1):
+        lin = nn.Linear(sizes[i], sizes[i + 1])
+        last = i == len(sizes) - 2
+        nn.init.orthogonal_(lin.weight, out_gain if last else math.sqrt(2))
+        nn.init.zeros_(lin.bias)
+        layers += [lin] if last else [lin, nn.ELU()]
+    return nn.Sequential(*layers)
+
+
+class MLPActorCritic(nn.Module):
+    """Gaussian policy with a state-independent std and a separate critic. [paper] Sec. V-A"""
+
+    def __init__(self, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfig()):
+        super().__init__()
+        self.actor = mlp([obs_dim, *cfg.hidden, act_dim], out_gain=0.01)
+        self.critic = mlp([obs_dim, *cfg.hidden, 1], out_gain=1.0)
+        self.log_std = nn.Parameter(torch.full((act_dim,), math.log(cfg.init_std)))
+
+    def mean(self, obs):
+        return self.actor(obs)
+
+    def value(self, obs):
+        return self.critic(obs).squeeze(-1)
+
+    def aux_loss(self, obs):
+        return torch.zeros(())
+
+
+class MoEActorCritic(nn.Module):
+    """e2e MoE baseline: K expert actors on the full observation, mixed by a soft gate on the design vector.
+
+    mean = sum_k softmax(gate(theta_m))_k * expert_k(s~); one shared critic; a load-balance loss keeps the
+    batch-average gate weights near uniform. [facts] "MoE baseline"
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfig()):
+        super().__init__()
+        self.design_dim, self.k, self.lb = cfg.design_dim, cfg.moe_experts, cfg.load_balance_coef
+        self.experts = nn.ModuleList(mlp([obs_dim, *cfg.hidden, act_dim], out_gain=0.01) for _ in range(self.k))
+        self.gate = mlp([cfg.design_dim, *cfg.gate_hidden, self.k], out_gain=0.01)
+        self.critic = mlp([obs_dim, *cfg.hidden, 1], out_gain=1.0)
+        self.log_std = nn.Parameter(torch.full((act_dim,), math.log(cfg.init_std)))
+
+    def gate_weights(self, design_obs):
+        """Softmax gate weights (n, K) for the design part of (normalised) observations (n, design_dim)."""
+        return torch.softmax(self.gate(design_obs), dim=-1)
+
+    def mean(self, obs):
+        w = self.gate_weights(obs[:, -self.design_dim:])
+        mus = torch.stack([e(obs) for e in self.experts], dim=1)       # (n, K, act)
+        return (w.unsqueeze(-1) * mus).sum(1)
+
+    def value(self, obs):
+        return self.critic(obs).squeeze(-1)
+
+    def aux_loss(self, obs):
+        """Load balance: K * sum_k (mean gate weight k)^2 - 1, zero when experts are used equally."""
+        w = self.gate_weights(obs[:, -self.design_dim:]).mean(0)
+        return self.lb * (self.k * (w ** 2).sum() - 1.0)
+
+
+POLICIES = {"mlp": MLPActorCritic, "moe": MoEActorCritic}
+
+
+def make_policy(kind: str, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfig()) -> nn.Module:
+    if kind not in POLICIES:
+        raise ValueError(f"policy kind={kind!r} is not one of {tuple(POLICIES)}")
+    return POLICIES[kind](obs_dim, act_dim, cfg)
+
+
+def distribution(policy, obs):
+    mean = policy.mean(obs)
+    return torch.distributions.Normal(mean, policy.log_std.exp().expand_as(mean))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 4. GAE and the PPO update
+# ----------------------------------------------------------------------------------------------------------
+def gae(rewards, values, dones, last_value, gamma: float, lam: float):
+    """Generalised advantage estimation over (T, N) arrays.
+
+    dones[t] = 1 where the episode ended at step t (terminated or truncated). A truncated step's reward
+    must already hold gamma * V(final observation) (the time-limit bootstrap); the trace is cut there.
+    Returns (advantages, returns).
+    """
+    T = len(rewards)
+    adv = np.zeros_like(rewards)
+    last = np.zeros_like(last_value)
+    for t in reversed(range(T)):
+        next_v = last_value if t == T - 1 else values[t + 1]
+        nonterminal = 1.0 - dones[t]
+        delta = rewards[t] + gamma * next_v * nonterminal - values[t]
+        last = delta + gamma * lam * nonterminal * last
+        adv[t] = last
+    return adv, adv + values
+
+
+def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.random.Generator):
+    """Several epochs of clipped-surrogate minibatch steps; the learning rate follows the KL. [facts]"""
+    n = len(batch["obs"])
+    adv = batch["adv"]
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    stats = {"kl": [], "policy_loss": [], "value_loss": [], "entropy": []}
+    mb = n // cfg.minibatches
+    for _ in range(cfg.epochs):
+        perm = torch.from_numpy(rng.permutation(n))
+        for s in range(0, mb * cfg.minibatches, mb):
+            idx = perm[s:s + mb]
+            obs, act = batch["obs"][idx], batch["act"][idx]
+            dist = distribution(policy, obs)
+            logp = dist.log_prob(act).sum(-1)
+            with torch.no_grad():   # KL(old || new) of two diagonal Gaussians, for the schedule
+                old_mu, old_std = batch["mu"][idx], batch["std"][idx]
+                kl = (torch.log(dist.stddev / old_std) + (old_std ** 2 + (old_mu - dist.mean) ** 2)
+                      / (2 * dist.stddev ** 2) - 0.5).sum(-1).mean().item()
+            if kl > 2 * cfg.desired_kl:
+                lr = max(1e-5, lr / 1.5)
+            elif 0 < kl < cfg.desired_kl / 2:
+                lr = min(1e-2, lr * 1.5)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            ratio = torch.exp(logp - batch["logp"][idx])
+            a = adv[idx]
+            policy_loss = -torch.min(ratio * a, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * a).mean()
+            value_loss = (policy.value(obs) - batch["ret"][idx]).pow(2).mean()
+            entropy = dist.entropy().sum(-1).mean()
+            loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy + policy.aux_loss(obs)
+            opt.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(policy.parameters(), cfg.max_grad_norm)
+            opt.step()
+            for k, v in (("kl", kl), ("policy_loss", policy_loss.item()), ("value_loss", value_loss.item()),
+                         ("entropy", entropy.item())):
+                stats[k].append(v)
+    return lr, {k: float(np.mean(v)) for k, v in stats.items()}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 5. The trainer
+# ----------------------------------------------------------------------------------------------------------
+CKPT_VERSION = 1
+
+
+def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None):
+    """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint."""
+    state = {"version": CKPT_VERSION, "kind": kind, "obs_dim": int(norm.mean.shape[0]),
+             "act_dim": int(policy.log_std.shape[0]), "cfg": {k: list(v) if isinstance(v, tuple) else v
+                                                              for k, v in asdict(cfg).items()},
+             "policy": policy.state_dict(), "optimizer": opt.state_dict(), "norm": norm.state(),
+             "steps": int(steps), "lr": float(lr), "levels": torch.as_tensor(np.asarray(levels)),
+             "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "extra": extra or {}}
+    tmp = f"{path}.tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path) -> dict:
+    """torch.load(weights_only=True) with a clear error for a missing, corrupt or foreign file."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"checkpoint {path!r} does not exist")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise ValueError(f"checkpoint {path!r} is corrupt or not a ppo.py checkpoint: {e}") from None
+    if not isinstance(state, dict) or state.get("version") != CKPT_VERSION:
+        raise ValueError(f"checkpoint {path!r} is not a ppo.py checkpoint of version {CKPT_VERSION}")
+    return state
+
+
+def config_from(state) -> PPOConfig:
+    return PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in state["cfg"].items()})
+
+
+def policy_from(state) -> tuple[nn.Module, RunningNorm]:
+    """Rebuild the actor-critic and its observation normaliser from a checkpoint state."""
+    cfg = config_from(state)
+    policy = make_policy(state["kind"], state["obs_dim"], state["act_dim"], cfg)
+    try:
+        policy.load_state_dict(state["policy"])
+    except RuntimeError as e:
+        raise ValueError(f"checkpoint does not match a {state['kind']} policy: {e}") from None
+    norm = RunningNorm(state["obs_dim"], cfg.obs_clip)
+    norm.load(state["norm"])
+    return policy, norm
+
+
+def _set_lr(opt, lr):
+    for g in opt.param_groups:
+        g["lr"] = lr
+
+
+def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
+          init_ckpt: str | None = None, seed: int = 0, start_level: int = 0, log_csv: str | None = None,
+          progress=print) -> dict:
+    """Train a `kind` ('mlp' | 'moe') policy with PPO until `total_steps` control steps (cumulative).
+
+    `design_sampler(rng, n) -> (n, 4)` draws the designs of resetting lanes (uniform over a design space for
+    the e2e baselines, a GES territory for a specialist). If `ckpt` exists the run resumes from it; else,
+    if `init_ckpt` is given, policy, optimiser, normaliser and curriculum levels are warm-started from it
+    (GES rounds); else the policy starts fresh. Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and
+    at the end. Returns a summary of the last iteration.
+    """
+    if env.num_envs < 1 or total_steps < 1:
+        raise ValueError(f"total_steps={total_steps!r} must be >= 1")
+    torch.set_num_threads(1)   # the env workers own the cores; the update is small
+    resume = ckpt if os.path.exists(ckpt) else init_ckpt
+    state = load_checkpoint(resume) if resume else None
+    if state is not None:
+        if (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
+            raise ValueError(f"checkpoint {resume!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
+                             f" act {state['act_dim']}, not a {kind} policy for obs {env.obs_dim} / act {env.act_dim}")
+        policy, norm = policy_from(state)
+    else:
+        policy, norm = make_policy(kind, env.obs_dim, env.act_dim, cfg), RunningNorm(env.obs_dim, cfg.obs_clip)
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
+    rng = np.random.default_rng([seed, 1])
+    lr, steps = cfg.lr, 0
+    levels = np.full(env.num_envs, start_level)
+    if state is not None:
+        opt.load_state_dict(state["optimizer"])
+        lr = state["lr"]
+        lv = state["levels"].numpy()
+        levels = np.resize(lv, env.num_envs) if len(lv) else levels
+        if resume == ckpt:   # resuming this very run: continue its step count and random streams
+            steps = state["steps"]
+            rng.bit_generator.state = state["rng"]
+            torch.set_rng_state(state["torch_rng"])
+    if resume != ckpt:
+        torch.manual_seed(seed)
+    if steps >= total_steps:
+        return {"steps": steps, "resumed": True}
+    obs, info = env.reset(seed=int(rng.integers(2 ** 31)),
+                          options={"design_sampler": design_sampler, "levels": levels})
+    T, N = cfg.num_steps, env.num_envs
+    log = open(log_csv, "a", newline="") if log_csv else None
+    writer = csv.writer(log) if log else None
+    if log and log.tell() == 0:
+        writer.writerow(["steps", "wall_s", "steps_per_s", "mean_reward", "episode_return", "mean_level",
+                         "kl", "lr", "value_loss", "entropy", "std"])
+    t_start, it, ep_returns = time.time(), 0, []
+    while steps < total_steps:
+        t0 = time.time()
+        buf = {k: np.zeros((T, N) + s, dtype=np.float32) for k, s in
+               (("obs", (env.obs_dim,)), ("act", (env.act_dim,)), ("mu", (env.act_dim,)), ("rew", ()),
+                ("done", ()), ("val", ()), ("logp", ()))}
+        std = policy.log_std.exp().detach()
+        for t in range(T):
+            norm.update(obs)
+            o = torch.from_numpy(norm(obs))
+            with torch.no_grad():
+                mu = policy.mean(o)
+                act = mu + std * torch.randn(mu.shape)
+                val = policy.value(o)
+                logp = torch.distributions.Normal(mu, std).log_prob(act).sum(-1)
+            obs, rew, term, trunc, info = env.step(act.numpy())
+            rew = rew.astype(np.float32).copy()
+            if trunc.any():   # time-limit end: bootstrap with V(final observation)
+                with torch.no_grad():
+                    v_final = policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
+                rew[trunc] += cfg.gamma * v_final
+            done = term | trunc
+            if done.any():
+                ep_returns.extend(info["episode_return"][done].tolist())
+            for k, v in (("obs", o.numpy()), ("act", act.numpy()), ("mu", mu.numpy()), ("rew", rew),
+                         ("done", done), ("val", val.numpy()), ("logp", logp.numpy())):
+                buf[k][t] = v
+        with torch.no_grad():
+            last_v = policy.value(torch.from_numpy(norm(obs))).numpy()
+        adv, ret = gae(buf["rew"], buf["val"], buf["done"], last_v, cfg.gamma, cfg.lam)
+        flat = lambda x: torch.from_numpy(np.ascontiguousarray(x.reshape((T * N,) + x.shape[2:])))
+        batch = {k: flat(buf[k]) for k in ("obs", "act", "mu", "logp")}
+        batch.update(adv=flat(adv), ret=flat(ret), std=std.expand(T * N, -1))
+        t_roll = time.time() - t0
+        lr, st = ppo_update(policy, opt, batch, cfg, lr, rng)
+        steps += T * N
+        it += 1
+        levels = np.asarray(info["levels"])
+        rate = T * N / (time.time() - t0)
+        ep_ret = float(np.mean(ep_returns[-100:])) if ep_returns else float("nan")
+        row = [steps, round(time.time() - t_start, 2), round(rate, 1), float(buf["rew"].mean()), ep_ret,
+               float(levels.mean()), st["kl"], lr, st["value_loss"], st["entropy"], float(std.mean())]
+        if writer:
+            writer.writerow(row)
+            log.flush()
+        if progress:
+            eta = (total_steps - steps) / max(rate, 1e-9)
+            progress(f"[{kind}] {steps:>9,}/{total_steps:,} steps  {rate:6.0f} steps/s (rollout "
+                     f"{100 * t_roll / (time.time() - t0):3.0f}%)  reward {row[3]:+.3f}  return {ep_ret:+8.2f}  "
+                     f"level {levels.mean():5.1f}  kl {st['kl']:.4f}  lr {lr:.1e}  std {row[10]:.2f}  "
+                     f"eta {eta / 60:5.1f} min")
+        if it % cfg.ckpt_every == 0 or steps >= total_steps:
+            save_checkpoint(ckpt, policy, opt, norm, kind, cfg, steps, lr, levels, rng)
+    if log:
+        log.close()
+    return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
+            "wall_s": time.time() - t_start}
+
+
+def plot_learning_curve(log_csv: str, path: str, title: str = ""):
+    """Mean episode return and mean curriculum level against control steps, from a train() CSV log."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    with open(log_csv) as f:
+        rows = list(csv.DictReader(f))
+    steps = np.array([float(r["steps"]) for r in rows])
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.2))
+    ax[0].plot(steps, [float(r["episode_return"]) for r in rows])
+    ax[0].set(xlabel="control steps", ylabel="episode return (last 100)")
+    ax[1].plot(steps, [float(r["mean_level"]) for r in rows])
+    ax[1].set(xlabel="control steps", ylabel="mean curriculum level")
+    fig.suptitle(title or os.path.basename(log_csv))
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 6. A checkpoint as a plain callable
+# ----------------------------------------------------------------------------------------------------------
+class PolicyFn:
+    """obs (n, obs_dim) numpy -> deterministic action (the Gaussian mean), as ballu.score expects."""
+
+    def __init__(self, policy: nn.Module, norm: RunningNorm):
+        self.policy, self.norm = policy.eval(), norm
+
+    def __call__(self, obs):
+        with torch.no_grad():
+            return self.policy.mean(torch.from_numpy(self.norm(np.asarray(obs)))).numpy().astype(np.float64)
+
+    def gate_weights(self, design_obs):
+        """MoE gate weights for raw design-vector observations (n, design_dim), normalised as in training."""
+        d = self.policy.design_dim
+        x = np.clip((design_obs - self.norm.mean[-d:]) / np.sqrt(self.norm.var[-d:] + 1e-8), -self.norm.clip,
+                    self.norm.clip)
+        with torch.no_grad():
+            return self.policy.gate_weights(torch.as_tensor(x, dtype=torch.float32)).numpy()
+
+
+def load_policy(path: str) -> PolicyFn:
+    torch.set_num_threads(1)
+    return PolicyFn(*policy_from(load_checkpoint(path)))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. Command line
+# ----------------------------------------------------------------------------------------------------------
+def _ballu_sampler(name: str):
+    import ballu
+    d2_low, d2_high = [0.45, 0.45, 0.72, 0.001], [0.45, 0.45, 0.90, 0.100]
+    named = {"baseline": ballu.BASELINE, "d2c": [0.45, 0.45, 0.81, 0.0505]}
+    if name in named:
+        return ballu.FixedDesign(named[name])
+    if name == "d2":
+        return ballu.UniformDesign(d2_low, d2_high)
+    return ballu.FixedDesign([float(v) for v in name.split(",")])
+
+
+def _main(argv=None):
+    import ballu
+    ap = argparse.ArgumentParser(description="PPO on BALLU")
+    ap.add_argument("--train", metavar="OUT_DIR", help="train a policy; checkpoint, CSV and curve go here")
+    ap.add_argument("--bench", action="store_true", help="env-only vs end-to-end training rate")
+    ap.add_argument("--task", default="obstacle", choices=ballu.TASKS)
+    ap.add_argument("--design", default="baseline", help="baseline | d2c | d2 (uniform) | l_f,l_t,gcr,spcf")
+    ap.add_argument("--kind", default="mlp", choices=tuple(POLICIES))
+    ap.add_argument("--steps", type=int, default=1_000_000, help="control steps")
+    ap.add_argument("--envs", type=int, default=PPOConfig.num_envs)
+    ap.add_argument("--rollout", type=int, default=PPOConfig.num_steps)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--start-level", type=int, default=0)
+    ap.add_argument("--reward", default="paper", choices=("paper", "code"))
+    ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
+    args = ap.parse_args(argv)
+    cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout)
+    bcfg = ballu.BalluConfig(task=args.task, reward_form=args.reward)
+    if args.bench:
+        bench(cfg, bcfg, args.workers)
+    if args.train:
+        os.makedirs(args.train, exist_ok=True)
+        sampler = _ballu_sampler(args.design)
+        env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
+        ck = os.path.join(args.train, "policy.pt")
+        try:
+            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=args.start_level,
+                        log_csv=os.path.join(args.train, "log.csv"))
+        finally:
+            env.close()
+        plot_learning_curve(os.path.join(args.train, "log.csv"), os.path.join(args.train, "curve.png"),
+                            f"{args.kind} {args.task} {args.design}")
+        print("trained:", out)
+        if args.score:
+            designs = sampler(np.random.default_rng(123), 8 if args.design == "d2" else 1)
+            s = ballu.score(load_policy(ck), designs, args.task, workers=args.workers)
+            print(f"J = {s.round(2).tolist()} (mean {s.mean():.2f})")
+
+
+def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 3):
+    """Env-only control steps/s (fixed random policy) vs end-to-end PPO training, same env and layout."""
+    import tempfile
+    import ballu
+    env = ballu.make_env(cfg.num_envs, workers, bcfg)
+    sampler = ballu.FixedDesign(ballu.BASELINE)
+    env.reset(seed=0, options={"design_sampler": sampler, "levels": 0})
+    rng = np.random.default_rng(0)
+    n = cfg.num_steps * iters
+    t0 = time.time()
+    for _ in range(n):
+        env.step(rng.normal(0, 0.5, (cfg.num_envs, 2)))
+    env_rate = n * cfg.num_envs / (time.time() - t0)
+    with tempfile.TemporaryDirectory() as d:
+        t0 = time.time()
+        train("mlp", env, sampler, n * cfg.num_envs, os.path.join(d, "p.pt"), cfg, progress=None)
+        train_rate = n * cfg.num_envs / (time.time() - t0)
+    env.close()
+    print(f"env only (random policy): {env_rate:8.0f} control steps/s   ({cfg.num_envs} envs, {workers} workers)")
+    print(f"PPO training end to end : {train_rate:8.0f} control steps/s   ({100 * train_rate / env_rate:.0f} % of env only)")
+    return env_rate, train_rate
+
+
+if __name__ == "__main__":
+    _main()
