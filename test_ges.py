@@ -1160,3 +1160,157 @@ def test_moe_gate_weights_sum_to_one_and_get_gradients():
     assert all(x is not None for x in g) and sum(x.abs().sum() for x in g) > 0
     # the load-balance term is zero for uniform use and positive otherwise
     assert float(pol.aux_loss(obs).detach()) >= 0.0
+
+
+# ==========================================================================================================
+# run_all.py: the smoke pipeline end to end, resume after a kill, bad input, GES as one routed policy
+# ==========================================================================================================
+import csv as csv_module  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+
+import run_all  # noqa: E402
+
+SMOKE_FIGURES = ["fig1_strip_obstacle.png", "fig1_strip_ramp.png", "fig3_distributions.png",
+                 "fig4_expert_contributions.png", "fig5_toe_heights.png", "fig7_k_sensitivity.png",
+                 "fig8_design_sensitivity.png"] + [f"fig6_territories_{t}-{s}.png" for t in ("obstacle", "ramp")
+                                                   for s in ("d2", "d3")]
+TIMING_FIELDS = {"seconds", "stage1_seconds", "bo_measured_s", "bo_s", "ges_stage1_s", "ges_tpe_s", "ges_s",
+                 "reduction_pct"}
+
+
+def _numbers_only(obj):
+    """A stage result without its wall times (the only thing a resumed run may change)."""
+    if isinstance(obj, dict):
+        return {k: _numbers_only(v) for k, v in obj.items() if k not in TIMING_FIELDS}
+    if isinstance(obj, list):
+        return [_numbers_only(v) for v in obj]
+    return obj
+
+
+def _report_numbers(path):
+    """REPORT.md without the lines that hold wall times."""
+    lines = open(path).read().splitlines()
+    return [ln for ln in lines if not re.search(r"wall|\b\d+ s\b", ln, re.I)]
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    """One uninterrupted smoke run (1 worker: no process spawns, ~1-2 min here)."""
+    out = str(tmp_path_factory.mktemp("smoke") / "a")
+    assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "1", "--seed", "3"]) == 0
+    return out
+
+
+def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
+    rep = open(os.path.join(smoke_run, "REPORT.md")).read()
+    for head in ("## Table I", "## Table II", "### Peaks found by TPE", "### Head-to-head", "## Table III",
+                 "## K sensitivity", "## Computational cost", "## Figures", "## Wall time per stage"):
+        assert head in rep, head
+    assert "(36.9)" in rep and "(35.2)" in rep and "37 %" in rep          # paper numbers beside ours
+    assert "nan" not in rep.lower() and " - (" not in rep                # every "ours" cell was measured
+    res = json.load(open(os.path.join(smoke_run, "results.json")))
+    assert set(res["stages"]) == set(run_all.STAGES) and all(v is not None for v in res["stages"].values())
+    t2 = res["stages"]["table2"]
+    for key, cell in t2["cells"].items():
+        for m in run_all.METHODS:
+            s = np.array(cell[m]["scores"])
+            assert len(s) == run_all.SMOKE.n_test and np.isfinite(s).all(), (key, m)
+    assert all(np.isfinite(p["peak"]) and p["trials"] == run_all.SMOKE.tpe_trials for p in t2["peaks"].values())
+    assert set(res["stages"]["table3"]) == set(run_all.SMOKE.table3_inits)
+    assert set(res["stages"]["ksens"]) == {str(k) for k in run_all.SMOKE.ksens_K}
+    cost = res["stages"]["cost"]
+    assert cost["bo_s"] > 0 and cost["ges_s"] > 0 and np.isfinite(cost["reduction_pct"])
+    assert 0.0 <= res["stages"]["figures"]["moe_gate_entropy"] <= 1.0 + 1e-9
+    for f in SMOKE_FIGURES:
+        p = os.path.join(smoke_run, "figures", f)
+        assert os.path.getsize(p) > 1000 and open(p, "rb").read(8) == b"\x89PNG\r\n\x1a\n", f
+    assert len(os.listdir(os.path.join(smoke_run, "figures", "curves"))) >= 2 + 4 + 3 + 1
+    with open(os.path.join(smoke_run, "test_scores.csv")) as fh:
+        rows = list(csv_module.DictReader(fh))
+    assert len(rows) == 4 * run_all.SMOKE.n_test
+    assert all(np.isfinite(float(r[m])) for r in rows for m in run_all.METHODS)
+    man = json.load(open(os.path.join(smoke_run, "manifest.json")))
+    assert man["preset"] == "smoke" and man["seed"] == 3
+    assert man["budgets"]["ppo_steps"] == run_all.SMOKE.ppo_steps
+
+
+def test_run_all_killed_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monkeypatch):
+    out = str(tmp_path / "b")
+    args = ["--preset", "smoke", "--out", out, "--workers", "1", "--seed", "3"]
+    assert run_all.main(args + ["--only", "table1,baselines"]) == 0
+    monkeypatch.setenv("RUN_ALL_FAIL_AT", "ges:obstacle-d3-K6-fps-lloyd:round1")   # mid GES run
+    with pytest.raises(RuntimeError, match="simulated kill"):
+        run_all.main(args)
+    monkeypatch.setenv("RUN_ALL_FAIL_AT", "tpe:obstacle-d2-ges:trial1")            # mid TPE search
+    with pytest.raises(RuntimeError, match="simulated kill"):
+        run_all.main(args)
+    monkeypatch.delenv("RUN_ALL_FAIL_AT")
+    assert run_all.main(args) == 0
+    a, b = (json.load(open(os.path.join(d, "results.json")))["stages"] for d in (smoke_run, out))
+    assert _numbers_only(a) == _numbers_only(b)
+    assert _report_numbers(os.path.join(smoke_run, "REPORT.md")) == _report_numbers(os.path.join(out,
+                                                                                                "REPORT.md"))
+    # the killed GES run repeated its interrupted round and continued the specialists' PPO step counts
+    ck = os.path.join(out, "ges", "obstacle-d3-K6-fps-lloyd", "ckpt")
+    for r in range(run_all.SMOKE.ges_max_rounds):
+        steps = ppo.load_checkpoint(os.path.join(ck, f"spec0_round{r:02d}.ckpt"))["steps"]
+        batch = run_all.SMOKE.ppo_envs * run_all.SMOKE.ppo_rollout
+        assert steps >= (r + 1) * run_all.SMOKE.ges_round_steps > steps - batch
+
+
+def test_run_all_bad_input_exits_2_and_overwrites_nothing(smoke_run, tmp_path, capsys):
+    base = ["--preset", "smoke", "--workers", "1", "--seed", "3"]
+    assert run_all.main(base + ["--out", str(tmp_path / "x"), "--only", "table1,nope"]) == 2
+    assert "unknown stage" in capsys.readouterr().err and not (tmp_path / "x").exists()
+    blocker = tmp_path / "file"
+    blocker.write_text("a file, not a folder")
+    assert run_all.main(base + ["--out", str(blocker / "sub")]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    assert run_all.main(base + ["--out", str(foreign), "--fresh"]) == 2
+    assert "no manifest.json" in capsys.readouterr().err and (foreign / "notes.txt").read_text() == "keep me"
+    before = {f: os.path.getmtime(os.path.join(smoke_run, f)) for f in ("manifest.json", "REPORT.md")}
+    for other in (["--preset", "quick"], ["--seed", "4"]):   # a folder of another preset / seed
+        assert run_all.main(base + ["--out", smoke_run] + other) == 2
+        assert "--fresh" in capsys.readouterr().err
+    assert before == {f: os.path.getmtime(os.path.join(smoke_run, f)) for f in before}
+    assert run_all.main(base + ["--out", str(tmp_path / "y"), "--only", "table2"]) == 2   # inputs missing
+    assert "needs stage(s)" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:                     # argparse: unknown preset
+        run_all.main(["--preset", "huge"])
+    assert e.value.code == 2
+    proc = subprocess.run([sys.executable, "run_all.py", "--only", "figures,nope", "--out", str(tmp_path / "z")],
+                          cwd=os.path.dirname(os.path.abspath(run_all.__file__)), capture_output=True, text=True)
+    assert proc.returncode == 2 and "unknown stage" in proc.stderr
+
+
+def test_run_all_routed_policy_is_the_density_router(smoke_run):
+    """GES scored as one policy: each lane's design, read back from its observation, is routed like
+    GESResult.route (paper eq. 10) and played by that specialist."""
+    run_dir = os.path.join(smoke_run, "ges", "obstacle-d3-K6-fps-lloyd")
+    res, routed = ges.load_result(run_dir), run_all.RoutedPolicy(run_dir)
+    theta = res.space.sample_uniform(np.random.default_rng(0), 64)
+    ks = res.route(theta)
+    np.testing.assert_array_equal(routed.route_designs(theta), ks)
+    rng = np.random.default_rng(1)
+    obs = rng.normal(size=(64, ballu.OBS_DIM)).astype(np.float32)
+    obs[:, -4:] = ballu.normalise_design(res.space.full(theta))
+    act = routed(obs)
+    for k in np.unique(ks):
+        np.testing.assert_allclose(act[ks == k], ppo.load_policy(res.ckpt[k])(obs[ks == k]), rtol=1e-6)
+
+
+def test_run_all_small_rules():
+    for task in ("obstacle", "ramp"):
+        for lv in range(ballu.MAX_LEVEL + 1):
+            assert run_all.level_of(task, float(ballu.level_score(task, lv))) == lv
+    seed = run_all.derive_seed
+    assert seed(0, "ppo", "a") == seed(0, "ppo", "a") != seed(1, "ppo", "a") and seed(0, "a") != seed(0, "b")
+    assert run_all.wins(np.array([3, 2, 1, 1]), np.array([1, 2, 3, 1])) == {"win_pct": 25.0, "tie_pct": 50.0}
+    assert run_all.cell(12.345, None) == "12.3 (-)" and run_all.cell(None, 36.9) == "- (36.9)"
+    for p in run_all.PRESETS.values():   # GES budgets must fit the per-policy budget's meaning
+        assert p.ges_round_steps * p.ges_max_rounds <= p.ppo_steps * 1.01 and p.cost_trials <= p.tpe_trials

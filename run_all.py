@@ -1,0 +1,1208 @@
+"""run_all.py -- one command that regenerates every table and figure of the GES paper with our code.
+
+    python run_all.py [--preset smoke|quick|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S] [--fresh]
+
+Read top to bottom:
+  1. the paper's numbers, quoted from paper/ges_paper.tex (printed beside ours, never mixed with them)
+  2. presets: every budget of a run in one dataclass, with the timing arithmetic next to each preset
+  3. small tools: derived seeds, atomic JSON, progress lines with ETA, a kill hook for the resume test
+  4. policies: PPO training of one policy, the GES specialists' train/score callables, GES as one policy
+  5. stages (each a function, each name usable with --only):
+       table1     the design space and the baseline design                       (paper Table I)
+       baselines  PPO policies: baseline design, e2e MLP and e2e MoE per task/space (Sec. V-A)
+       ges        GES stage 1 for obstacle/ramp x D2/D3 (K = 3 / 6)                 (Alg. 1)
+       table2     mean score over test designs, TPE peaks, head-to-head wins       (Table II, Sec. V-B)
+       table3     GES with grid / random / fps / fps+lloyd init                     (Table III)
+       ksens      GES mean score for K = 1..6                                       (Fig. 7)
+       cost       GES co-design vs per-design BO wall time                          (Sec. V-D, 37 %)
+       figures    Figs. 1, 3-8 and every learning curve
+  6. REPORT.md: every table with each cell as "ours (paper)", the budgets, seed, commit, wall times
+  7. the command line
+
+Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
+policies/, ges/, tpe/, stages/). Every stage writes its artifacts when it finishes and long stages checkpoint
+inside (PPO via ppo.train's checkpoint, GES via run_ges's run_dir, TPE via its study file), so a rerun skips
+finished work; --fresh starts over. All randomness derives from --seed.
+
+What "ours" means: numbers this run measured with ballu.py (PyBullet, not Isaac Lab), ppo.py, ges.py and
+tpe.py under the preset's budgets, which are far below the paper's except in the `paper` preset.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import json
+import math
+import multiprocessing as mp
+import os
+import shutil
+import subprocess
+import sys
+import time
+import zlib
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+
+import ballu
+import ges
+import ppo
+import tpe
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS_FORMAT = 1   # bump when what a stage computes or stores changes: old result folders are then refused
+
+# ----------------------------------------------------------------------------------------------------------
+# 1. The paper's numbers (quoted from paper/ges_paper.tex; "None" = the paper gives no number)
+# ----------------------------------------------------------------------------------------------------------
+TASKS = ("obstacle", "ramp")
+SPACES = ("d2", "d3")
+UNIT = {"obstacle": "cm", "ramp": "deg"}
+METHODS = ("baseline", "mlp", "moe", "ges")          # "baseline" = the baseline design's own policy
+METHOD_NAMES = {"baseline": "baseline policy", "mlp": "e2e MLP", "moe": "e2e MoE", "ges": "GES"}
+
+# Table I "BALLU morphology parameters": (lower, upper, baseline)
+PAPER_TABLE1 = {"l_f": (0.25, 0.55, 0.45), "l_t": (0.25, 0.55, 0.45), "gcr": (0.72, 0.90, 0.70),
+                "spcf": (0.001, 0.100, 0.002)}
+# Table II "Mean Simulation Performance": baseline design, e2e MLP, e2e MoE, GES (cm / degrees)
+PAPER_TABLE2 = {("obstacle", "d2"): {"design": 14.2, "mlp": 29.4, "moe": 34.0, "ges": 36.9},
+                ("obstacle", "d3"): {"design": 14.2, "mlp": 24.5, "moe": 21.2, "ges": 29.1},
+                ("ramp", "d2"): {"design": 25.1, "mlp": 27.9, "moe": 28.4, "ges": 31.4},
+                ("ramp", "d3"): {"design": 25.1, "mlp": 28.3, "moe": 27.9, "ges": 29.7}}
+# Sec. V-B text: peak scores found by the design search ("GES finds designs that clear a 54 cm obstacle,
+# versus 38 cm for e2e MLP and 52 cm for e2e MoE", ...); the ramp 3D peaks are given only as a gain (~8 %).
+PAPER_PEAK = {("obstacle", "d2"): {"mlp": 38.0, "moe": 52.0, "ges": 54.0},
+              ("obstacle", "d3"): {"mlp": 41.0, "moe": None, "ges": 54.0},
+              ("ramp", "d2"): {"mlp": 32.61, "moe": 32.61, "ges": 36.25},
+              ("ramp", "d3"): {"mlp": None, "moe": None, "ges": None}}
+# Sec. V-B/V-D text: the GES-optimised designs (GCR 0.88, SPCF 0.008 obstacle D2; leg 45.58 cm obstacle D3;
+# leg 31.45 cm ramp D3)
+PAPER_PEAK_DESIGN = {("obstacle", "d2"): "gcr=0.88 spcf=0.008", ("obstacle", "d3"): "l=0.4558",
+                     ("ramp", "d2"): None, ("ramp", "d3"): "l=0.3145"}
+# Sec. V-B text: head-to-head win rates of GES over 1000 test designs (%)
+PAPER_WINS = {("obstacle", "d2"): {"mlp": 94, "moe": 72}, ("obstacle", "d3"): {"mlp": 68, "moe": 76},
+              ("ramp", "d2"): {"mlp": 81, "moe": 78}, ("ramp", "d3"): {"mlp": 75, "moe": 86}}
+# Table III "Impact of initialization strategy" (K = 3, obstacle, D2): mean, min, max in cm
+PAPER_TABLE3 = {"grid": (29.7, 22, 43), "random": (31.5, 24, 45), "fps": (34.5, 22, 52),
+                "fps+lloyd": (35.2, 24, 52)}
+# Fig. 7: no numbers in the text, only "Performance peaks at K = 3 and degrades for larger K"
+PAPER_KSENS_PEAK_K = 3
+# Sec. V-D "Computational Cost": ~100 h per-design BO vs ~63 h GES on the 3D space, a 37 % reduction;
+# Stage 1 for K = 6 took 48 h.
+PAPER_COST = {"bo_h": 100.0, "ges_h": 63.0, "reduction_pct": 37.0, "stage1_h": 48.0}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 2. Presets: every budget of one run
+# ----------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Preset:
+    """All budgets of a run. `ppo_steps` is THE per-policy PPO budget (baseline, e2e MLP/MoE, per-design BO);
+    a GES specialist trains `ges_round_steps` per round, cumulative (round + 1) * ges_round_steps."""
+    name: str
+    ppo_steps: int              # control steps per policy (the lead tunes this one)
+    ges_round_steps: int        # control steps per GES specialist per round
+    ppo_envs: int               # PPO lanes per policy (PPOConfig.num_envs)
+    ppo_rollout: int            # PPO steps per lane and update (PPOConfig.num_steps)
+    score_episodes: int         # episodes of the curriculum score J (paper/facts: 20)
+    n_test: int                 # held-out uniform test designs per task/space (paper: 1000)
+    tpe_trials: int             # TPE trials per design search (facts: 40)
+    tpe_startup: int            # random trials before TPE proposes
+    K_d2: int                   # specialists in D2 (paper: 3)
+    K_d3: int                   # specialists in D3 (paper: 6)
+    ges_max_rounds: int         # hard stop of GES (facts: 20)
+    ges_target_coverage: float  # stop at this MC coverage (paper: 0.95)
+    ges_probes: int             # F probes per round (facts: 100)
+    ges_probe_pool: int         # uniform points the probes are picked from (facts: 2000)
+    ges_init_designs: int       # designs seeding each territory (facts: 50)
+    ges_n_mc: int               # MC coverage points (paper: 10^4)
+    ges_fps_pool: int           # FPS / Lloyd pool (facts: 10^4)
+    ksens_K: tuple              # K values of Fig. 7 (obstacle, D2)
+    table3_inits: tuple         # initialisations of Table III (obstacle, D2, K = K_d2)
+    cost_trials: int            # per-design BO trials actually run (extrapolated to tpe_trials if fewer)
+    cost_task: str = "obstacle"  # the paper measured cost on the 3D space
+    cost_space: str = "d3"
+    ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
+
+
+# smoke: the whole pipeline with tiny budgets (numbers mean nothing) in about a minute on 2 cores.
+# Measured here on a loaded 2-core machine: see the final report / test; scoring 1 episode x 400 steps per
+# design, 2 GES rounds x 2 probes, 3 test designs, 3 TPE trials, 128 PPO steps per policy.
+SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollout=16, score_episodes=1,
+               n_test=3, tpe_trials=3, tpe_startup=2, K_d2=3, K_d3=6, ges_max_rounds=2, ges_target_coverage=0.95,
+               ges_probes=2, ges_probe_pool=50, ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3),
+               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2)
+
+# quick: every table and figure in about 2 h on this 2-core machine. Rates measured here: PPO ~1,750 control
+# steps/s per core (3,000-4,000/s on both), scoring ~2,000 control steps/s per core, one score J =
+# 20 episodes x 400 steps = 8,000 steps = 4 core-s. Work (core-seconds):
+#   PPO: 10 policies (2 baseline-design + 4 MLP + 4 MoE) x 100k                                   =  1.0 M steps
+#        GES specialists: 4 main runs (3+3+6+6) + Table III (3 runs x 3) + K-sens (1+2+4+5+6) = 45,
+#        x 3 rounds x 33k                                                                         =  4.5 M steps
+#        per-design BO: 20 trials x 100k                                                          =  2.0 M steps
+#        7.5 M steps / 1,750 per core-s                                                           ~  4,300 core-s
+#   GES probes: 45 specialists x 3 rounds x 6 probes x 4 core-s                                   ~  3,250 core-s
+#   test designs: (16 Table II + 3 Table III + 5 K-sens) score sets x 32 designs x 4 core-s        ~  3,100 core-s
+#   TPE: 12 searches (3 methods x 4 task/space) x 20 trials x 4 core-s, + BO scoring 20 x 4        ~  1,050 core-s
+#   figures (strips, toe heights, plots)                                                         ~    100 core-s
+#   total ~ 11,800 core-s / 2 cores ~ 1 h 40 min, ~ 2 h with pool and spawn overheads.
+# Scaling for the lead: every +100k of ppo_steps (with ges_round_steps = ppo_steps / 3) adds
+# (10 + 45 + 20) x 100k / 3,500 steps/s ~ 36 min; every +16 test designs ~ 13 min; +10 TPE trials ~ 10 min.
+QUICK = Preset("quick", ppo_steps=100_000, ges_round_steps=33_000, ppo_envs=16, ppo_rollout=64,
+               score_episodes=20, n_test=32, tpe_trials=20, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=3,
+               ges_target_coverage=0.95, ges_probes=6, ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000,
+               ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
+               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=20)
+
+# paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
+# PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For big
+# machines: --workers uses every core. Weeks on 2 cores.
+PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
+               score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
+               ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
+               ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
+               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=40)
+
+PRESETS = {p.name: p for p in (SMOKE, QUICK, PAPER)}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 3. Small tools
+# ----------------------------------------------------------------------------------------------------------
+class BadInput(Exception):
+    """A problem with the command line or the output folder: reported in one line, exit code 2."""
+
+
+def derive_seed(seed: int, *names) -> int:
+    """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
+    results do not depend on the order in which things run."""
+    keys = [zlib.crc32(str(n).encode()) for n in names]
+    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
+
+
+def write_json(path: str, obj) -> None:
+    """Atomic write (tmp + replace): a killed run never leaves half a file."""
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh, indent=1)
+    os.replace(tmp, path)
+
+
+def read_json(path: str):
+    with open(path) as fh:
+        return json.load(fh)
+
+
+def say(msg: str) -> None:
+    print(f"[run_all {time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+class Progress:
+    """'label i/n elapsed eta' lines for the units of a long stage, at most one every `every` seconds."""
+
+    def __init__(self, label: str, total: int, every: float = 10.0):
+        self.label, self.total, self.every = label, max(total, 1), every
+        self.t0, self.last = time.time(), 0.0
+
+    def __call__(self, done: int, note: str = "", force: bool = False):
+        now = time.time()
+        if not force and now - self.last < self.every and done < self.total:
+            return
+        self.last = now
+        el = now - self.t0
+        eta = el / done * (self.total - done) if done else float("nan")
+        say(f"  {self.label} {done}/{self.total}  elapsed {el:6.0f}s  eta {eta:6.0f}s  {note}")
+
+
+class Throttled:
+    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds."""
+
+    def __init__(self, prefix: str, every: float = 30.0):
+        self.prefix, self.every, self.last = prefix, every, 0.0
+
+    def __call__(self, text: str):
+        if time.time() - self.last >= self.every:
+            self.last = time.time()
+            say(f"    {self.prefix} {text}")
+
+
+def kill_hook(tag: str) -> None:
+    """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
+    if os.environ.get("RUN_ALL_FAIL_AT") == tag:
+        raise RuntimeError(f"simulated kill at {tag}")
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True,
+                             timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def code_hash() -> str:
+    """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
+    folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
+    h = hashlib.sha256(str(RESULTS_FORMAT).encode())
+    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
+        with open(os.path.join(HERE, name), "rb") as fh:
+            h.update(fh.read())
+    return h.hexdigest()[:16]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 4. Policies: PPO training, GES specialists, GES as one routed policy
+# ----------------------------------------------------------------------------------------------------------
+def space_of(preset: Preset, task: str, sp: str) -> ges.DesignSpace:
+    """D2 = (GCR, SPCF) with l_f = l_t = 0.45; D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B)."""
+    return (ges.d2 if sp == "d2" else ges.d3)(task, preset.ranges)
+
+
+def ppo_config(preset: Preset) -> ppo.PPOConfig:
+    return ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout)
+
+
+@dataclass
+class UniformIn:
+    """Uniform designs over a design space, physical units (e2e baselines: design randomisation)."""
+    space: ges.DesignSpace
+
+    def __call__(self, rng, n):
+        return self.space.sample_uniform(rng, n)
+
+
+@dataclass
+class FullDesigns:
+    """Maps a sampler over a design space (D2/D3 coordinates) to ballu's full (l_f, l_t, gcr, spcf) 4-vectors.
+    Top-level and picklable: BALLU's worker processes receive it."""
+    space: ges.DesignSpace
+    inner: object
+
+    def __call__(self, rng, n):
+        return self.space.full(self.inner(rng, n))
+
+
+def trim_log(csv_path: str, steps: int) -> None:
+    """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
+    resumed run's learning curve has no duplicated stretch."""
+    if not os.path.exists(csv_path):
+        return
+    with open(csv_path) as fh:
+        rows = list(csv.reader(fh))
+    keep = rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps]
+    with open(csv_path, "w", newline="") as fh:
+        csv.writer(fh).writerows(keep)
+
+
+def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
+                 workers: int, label: str) -> str:
+    """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
+
+    A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates): that continuation
+    restarts episodes, so it is close to, not bit-identical with, an uninterrupted run."""
+    os.makedirs(folder, exist_ok=True)
+    ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
+    have = ppo.load_checkpoint(ckpt)["steps"] if os.path.exists(ckpt) else 0
+    if have >= steps:
+        return ckpt
+    if have:
+        trim_log(log, have)
+    elif os.path.exists(log):
+        os.remove(log)
+    cfg = ppo_config(preset)   # few lanes stay in-process: a spawned worker costs ~2 s of imports
+    env = ballu.make_env(cfg.num_envs, max(1, min(workers, cfg.num_envs // 8)), ballu.BalluConfig(task=task))
+    if not have:
+        torch.manual_seed(seed)   # ppo.train builds a fresh network BEFORE it seeds torch: seed it here
+    try:
+        ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, log_csv=log, progress=Throttled(label))
+    finally:
+        env.close()
+    return ckpt
+
+
+@dataclass
+class TrainSpecialist:
+    """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
+
+    Round r continues the specialist's own PPO run to (r + 1) * round_steps control steps: its round r-1
+    checkpoint is copied to ckpt_out and ppo.train resumes it (step count, optimiser, normaliser, curriculum
+    and random streams carry over). ppo.train's warm start (init_ckpt) would restart the step count at 0, so
+    a cumulative total_steps would train r+1 rounds' worth in round r. A repeated round starts from a clean
+    copy, so it is identical to the interrupted one."""
+    task: str
+    space: ges.DesignSpace
+    round_steps: int
+    preset: Preset
+
+    def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
+        log = ckpt_out + ".csv"
+        for f in (ckpt_out, log):
+            if os.path.exists(f):
+                os.remove(f)
+        if ckpt_in:
+            shutil.copyfile(ckpt_in, ckpt_out)
+        else:   # ppo.train builds a fresh network BEFORE it seeds torch, so the initial weights would depend on
+            torch.manual_seed(sampler.seed)   # what this process ran before (pool order, resumes): seed it here
+        cfg = ppo_config(self.preset)
+        env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
+        try:
+            ppo.train("mlp", env, FullDesigns(self.space, sampler), (round + 1) * self.round_steps, ckpt_out,
+                      cfg, seed=sampler.seed, log_csv=log, progress=None)
+        finally:
+            env.close()
+
+
+@dataclass
+class ScoreSpecialist:
+    """GES score_fn: the paper's J of specialist k's deterministic policy on each design (one lane each)."""
+    task: str
+    space: ges.DesignSpace
+    episodes: int
+
+    def __call__(self, k, ckpt, designs):
+        return ballu.score(ppo.load_policy(ckpt), self.space.full(designs), self.task, episodes=self.episodes,
+                           workers=1)
+
+
+class RoutedPolicy:
+    """GES as one policy: each lane is played by the specialist whose Gaussian is densest at the lane's design
+    (the density router, paper eq. 10). The design is read back from the observation (its last 4 entries),
+    so ballu.score can score GES on a batch of designs exactly like any other policy: same lanes, same
+    call, one lane per design (a lane's trajectory depends on its lane index, so all methods must share them)."""
+
+    def __init__(self, run_dir: str):
+        res = ges.load_result(run_dir)
+        if any(c is None for c in res.ckpt):
+            raise ValueError(f"GES run {run_dir} has no trained specialists yet")
+        self.space, self.mu, self.sigma = res.space, res.mu_unit, res.sigma_unit
+        self.experts = [ppo.load_policy(c) for c in res.ckpt]
+        cols = {"l_f": 0, "l_t": 1, "gcr": 2, "spcf": 3, "l": 0}
+        self.cols = [cols[n] for n in self.space.names]
+
+    def route_designs(self, theta) -> np.ndarray:
+        """Specialist index for designs in the space's coordinates (n, d)."""
+        return ges.route(self.space.to_unit(np.atleast_2d(theta)), self.mu, self.sigma)
+
+    def __call__(self, obs):
+        full = obs[:, -4:].astype(float) * (ballu.TABLE_I_HIGH - ballu.TABLE_I_LOW) + ballu.TABLE_I_LOW
+        ks = self.route_designs(full[:, self.cols])
+        act = np.zeros((len(obs), ballu.ACT_DIM))
+        for k in np.unique(ks):
+            act[ks == k] = self.experts[k](obs[ks == k])
+        return act
+
+
+def score_policy(policy, designs_full, task, preset: Preset, workers: int, label: str) -> np.ndarray:
+    """J on a batch of full designs. Few lanes stay in this process (spawning workers costs more than it
+    saves); results do not depend on the worker count (lane ids are global)."""
+    w = max(1, min(workers, len(designs_full) // 16))
+    return ballu.score(policy, designs_full, task, episodes=preset.score_episodes, workers=w,
+                       progress=Throttled(label))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 5. Stages
+# ----------------------------------------------------------------------------------------------------------
+@dataclass
+class Run:
+    """Where a run writes and with which settings."""
+    out: str
+    preset: Preset
+    seed: int
+    workers: int
+
+    def path(self, *parts) -> str:
+        return os.path.join(self.out, *parts)
+
+    def K(self, sp: str) -> int:
+        return self.preset.K_d2 if sp == "d2" else self.preset.K_d3
+
+    def test_designs(self, task: str, sp: str) -> np.ndarray:
+        """The held-out uniform test designs of a task/space, the same for every method."""
+        rng = np.random.default_rng(derive_seed(self.seed, "test", task, sp))
+        return space_of(self.preset, task, sp).sample_uniform(rng, self.preset.n_test)
+
+    def pool(self):
+        """A process pool for independent jobs (spawn: the parent holds torch threads), or inline if 1 worker."""
+        if self.workers <= 1:
+            return ges.SerialExecutor()
+        return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
+
+
+# --- Table I ------------------------------------------------------------------------------------------------
+def stage_table1(run: Run) -> dict:
+    """Table I: the bounds our design spaces use and the baseline design (from ballu.py / ges.py)."""
+    rows = {n: (float(ballu.TABLE_I_LOW[i]), float(ballu.TABLE_I_HIGH[i]), float(ballu.BASELINE[i]))
+            for i, n in enumerate(ballu.DESIGN_NAMES)}
+    spaces = {f"{t}-{s}": space_of(run.preset, t, s).to_dict() for t in TASKS for s in SPACES}
+    return {"rows": rows, "spaces": spaces}
+
+
+# --- baselines ----------------------------------------------------------------------------------------------
+def policy_dir(run: Run, name: str) -> str:
+    return run.path("policies", name)
+
+
+def baseline_jobs(run: Run) -> list:
+    """(name, kind, task, sampler): the baseline design's own policy per task, e2e MLP and MoE per task/space
+    (trained with uniform design randomisation over the space, paper Sec. V-A)."""
+    jobs = [(f"baseline-{t}", "mlp", t, ballu.FixedDesign(ballu.BASELINE)) for t in TASKS]
+    for t in TASKS:
+        for s in SPACES:
+            space = space_of(run.preset, t, s)
+            for kind in ("mlp", "moe"):
+                jobs.append((f"{kind}-{t}-{s}", kind, t, FullDesigns(space, UniformIn(space))))
+    return jobs
+
+
+def stage_baselines(run: Run) -> dict:
+    """Train every non-GES policy with the same per-policy budget (ppo_steps), one after another, each using
+    all workers."""
+    jobs = baseline_jobs(run)
+    prog, out = Progress("policies", len(jobs), every=0), {}
+    for i, (name, kind, task, sampler) in enumerate(jobs):
+        t0 = time.time()
+        ckpt = train_policy(policy_dir(run, name), kind, task, sampler, run.preset.ppo_steps, run.preset,
+                            derive_seed(run.seed, "ppo", name), run.workers, name)
+        out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
+                     "seconds": time.time() - t0}
+        kill_hook(f"baselines:{name}")
+        prog(i + 1, name)
+    return out
+
+
+# --- GES ----------------------------------------------------------------------------------------------------
+def ges_name(task: str, sp: str, K: int, init: str) -> str:
+    return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"
+
+
+def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
+    """Run (or resume, or load) one GES stage 1; returns its summary with the wall time of its rounds."""
+    p = run.preset
+    name, space = ges_name(task, sp, K, init), space_of(p, task, sp)
+    run_dir = run.path("ges", name)
+    config = ges.GESConfig(K=K, n_probe=p.ges_probes, probe_pool=p.ges_probe_pool,
+                           n_init_designs=p.ges_init_designs, n_mc=p.ges_n_mc, max_rounds=p.ges_max_rounds,
+                           fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage)
+    os.makedirs(run_dir, exist_ok=True)
+    times_path = os.path.join(run_dir, "round_seconds.json")
+    times = read_json(times_path) if os.path.exists(times_path) else {}
+    last = [time.time()]
+
+    def on_round(msg: str):
+        """After each saved round: record its wall time (a repeated round overwrites), then the kill hook."""
+        if msg.startswith("GES resume"):
+            say(f"  GES {name}: {msg}")
+            return
+        r = read_json(os.path.join(run_dir, ges.STATE_FILE))["round"]
+        times[str(r)] = time.time() - last[0]
+        last[0] = time.time()
+        write_json(times_path, times)
+        say(f"  GES {name}: {msg}")
+        kill_hook(f"ges:{name}:round{r}")
+
+    res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p),
+                      ScoreSpecialist(task, space, p.score_episodes), run_dir, config,
+                      derive_seed(run.seed, "ges"), executor, progress=on_round)
+    return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "rounds": res.rounds,
+            "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
+            "mu": res.mu.tolist(), "sigma": res.sigma.tolist(), "names": list(space.names)}
+
+
+def ges_runs(run: Run, specs: list, label: str) -> dict:
+    """Several GES runs sharing one process pool (the K specialists of a round run in parallel)."""
+    out, prog = {}, Progress(label, len(specs), every=0)
+    with run.pool() as ex:
+        for i, (task, sp, K, init) in enumerate(specs):
+            out[ges_name(task, sp, K, init)] = ges_run(run, task, sp, K, init, ex)
+            prog(i + 1, ges_name(task, sp, K, init))
+    return out
+
+
+def stage_ges(run: Run) -> dict:
+    """GES stage 1 for obstacle/ramp x D2/D3 with the paper's default init (FPS + Lloyd)."""
+    return ges_runs(run, [(t, s, run.K(s), "fps+lloyd") for t in TASKS for s in SPACES], "GES runs")
+
+
+# --- Table II -----------------------------------------------------------------------------------------------
+def load_method(run: Run, method: str, task: str, sp: str):
+    """The policy callable of a method for a task/space ('baseline' = the baseline design's own policy)."""
+    if method == "baseline":
+        return ppo.load_policy(run.path("policies", f"baseline-{task}", "policy.pt"))
+    if method in ("mlp", "moe"):
+        return ppo.load_policy(run.path("policies", f"{method}-{task}-{sp}", "policy.pt"))
+    return RoutedPolicy(run.path("ges", ges_name(task, sp, run.K(sp), "fps+lloyd")))
+
+
+def cached_scores(run: Run, key: str, make_policy, designs_full, task) -> np.ndarray:
+    """Score a set of designs once; the scores are kept in scores/<key>.json (a resumable unit)."""
+    path = run.path("scores", f"{key}.json")
+    if os.path.exists(path):
+        return np.array(read_json(path)["scores"])
+    s = score_policy(make_policy(), designs_full, task, run.preset, run.workers, key)
+    write_json(path, {"scores": s.tolist(), "designs": np.asarray(designs_full).tolist()})
+    kill_hook(f"scores:{key}")
+    return s
+
+
+@dataclass
+class SearchSpec:
+    """One TPE design search maximising a method's J(theta) (picklable: runs in a pool worker)."""
+    out: str
+    preset: Preset
+    seed: int
+    task: str
+    sp: str
+    method: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}-{self.sp}-{self.method}"
+
+
+def tpe_search(spec: SearchSpec) -> dict:
+    """TPE over the design space: each trial scores one design with the method's policy (for GES: the routed
+    specialist, i.e. the paper's co-design loop). Resumable from tpe/<name>.json; trial wall times are kept
+    in the study file, so the cost stage can add them up."""
+    run = Run(spec.out, spec.preset, spec.seed, 1)
+    space = space_of(spec.preset, spec.task, spec.sp)
+    policy = load_method(run, spec.method, spec.task, spec.sp)
+    n = spec.preset.tpe_trials
+
+    def J(theta):
+        return float(ballu.score(policy, space.full(theta), spec.task, episodes=spec.preset.score_episodes)[0])
+
+    def after(study, trial):
+        secs = [t.seconds or 0.0 for t in study.trials]
+        eta = np.mean(secs) * (n - len(secs))
+        say(f"  tpe {spec.name} trial {len(secs)}/{n} y={trial.y} best={study.best.y if study.best else None} "
+            f"eta {eta:.0f}s")
+        kill_hook(f"tpe:{spec.name}:trial{trial.index}")
+
+    study = tpe.optimize(J, space.lo, space.hi, n, seed=derive_seed(spec.seed, "tpe", spec.task, spec.sp),
+                         config=tpe.TPEConfig(direction="maximize", n_startup=spec.preset.tpe_startup),
+                         path=run.path("tpe", f"{spec.name}.json"), names=list(space.names), callback=after,
+                         verbose=False)
+    best = study.best
+    return {"peak": best.y, "peak_design": dict(zip(space.names, best.x.tolist())),
+            "seconds": float(sum(t.seconds or 0.0 for t in study.trials)), "trials": len(study.trials)}
+
+
+def run_searches(run: Run, specs: list) -> dict:
+    """Independent TPE searches in a pool of --workers processes (each search is sequential)."""
+    os.makedirs(run.path("tpe"), exist_ok=True)
+    with run.pool() as ex:
+        futures = [ex.submit(tpe_search, s) for s in specs]
+        return {s.name: f.result() for s, f in zip(specs, futures)}
+
+
+def wins(a: np.ndarray, b: np.ndarray) -> dict:
+    """Head-to-head over the same test designs: % where a > b, % ties (scores are curriculum levels)."""
+    return {"win_pct": float(100 * np.mean(a > b)), "tie_pct": float(100 * np.mean(a == b))}
+
+
+def stage_table2(run: Run) -> dict:
+    """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
+    out = {"design": {}, "cells": {}}
+    units = [(t, s, m) for t in TASKS for s in SPACES for m in METHODS]
+    prog = Progress("score sets", len(units) + len(TASKS), every=0)
+    for i, t in enumerate(TASKS):   # the "baseline design" column: the baseline policy at the baseline design
+        s = cached_scores(run, f"design-{t}", lambda: load_method(run, "baseline", t, "d2"),
+                          ballu.BASELINE[None], t)
+        out["design"][t] = float(s[0])
+        prog(i + 1, f"baseline design {t}")
+    for i, (t, s, m) in enumerate(units):
+        full = space_of(run.preset, t, s).full(run.test_designs(t, s))
+        sc = cached_scores(run, f"test-{t}-{s}-{m}", lambda: load_method(run, m, t, s), full, t)
+        out["cells"].setdefault(f"{t}-{s}", {})[m] = {"mean": float(sc.mean()), "std": float(sc.std()),
+                                                      "min": float(sc.min()), "max": float(sc.max()),
+                                                      "scores": sc.tolist()}
+        prog(len(TASKS) + i + 1, f"{t} {s} {m}: mean {sc.mean():.2f}")
+    for key, cell in out["cells"].items():
+        g = np.array(cell["ges"]["scores"])
+        cell["ges_wins"] = {m: wins(g, np.array(cell[m]["scores"])) for m in ("baseline", "mlp", "moe")}
+    specs = [SearchSpec(run.out, run.preset, run.seed, t, s, m) for t in TASKS for s in SPACES
+             for m in ("mlp", "moe", "ges")]
+    out["peaks"] = run_searches(run, specs)
+    write_test_csv(run, out)
+    return out
+
+
+def write_test_csv(run: Run, t2: dict) -> None:
+    """test_scores.csv: one row per test design with every method's score (the raw numbers of Table II)."""
+    with open(run.path("test_scores.csv"), "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["task", "space", "l_f", "l_t", "gcr", "spcf"] + list(METHODS))
+        for t in TASKS:
+            for s in SPACES:
+                full = space_of(run.preset, t, s).full(run.test_designs(t, s))
+                cell = t2["cells"][f"{t}-{s}"]
+                for j, d in enumerate(full):
+                    w.writerow([t, s] + [f"{v:.6g}" for v in d] + [cell[m]["scores"][j] for m in METHODS])
+
+
+# --- Table III and K sensitivity ----------------------------------------------------------------------------
+def ges_test_scores(run: Run, name: str) -> np.ndarray:
+    """A GES run's routed score on the obstacle D2 test designs (shared with Table II)."""
+    full = space_of(run.preset, "obstacle", "d2").full(run.test_designs("obstacle", "d2"))
+    return cached_scores(run, f"test-obstacle-d2-ges-{name}", lambda: RoutedPolicy(run.path("ges", name)),
+                         full, "obstacle")
+
+
+def summary(s: np.ndarray) -> dict:
+    return {"mean": float(s.mean()), "min": float(s.min()), "max": float(s.max()), "std": float(s.std()),
+            "scores": s.tolist()}
+
+
+def stage_table3(run: Run) -> dict:
+    """Table III: GES (K = K_d2, obstacle, D2) with each centre initialisation; the FPS + Lloyd run is the
+    ges stage's run (same directory), so it is not trained twice."""
+    specs = [("obstacle", "d2", run.K("d2"), init) for init in run.preset.table3_inits]
+    runs = ges_runs(run, specs, "Table III GES runs")
+    return {init: dict(summary(ges_test_scores(run, ges_name(*sp))), rounds=runs[ges_name(*sp)]["rounds"],
+                       coverage=runs[ges_name(*sp)]["coverage"]) for init, sp in zip(run.preset.table3_inits, specs)}
+
+
+def stage_ksens(run: Run) -> dict:
+    """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run."""
+    specs = [("obstacle", "d2", K, "fps+lloyd") for K in run.preset.ksens_K]
+    runs = ges_runs(run, specs, "K-sensitivity GES runs")
+    return {str(K): dict(summary(ges_test_scores(run, ges_name(*sp))), rounds=runs[ges_name(*sp)]["rounds"],
+                         coverage=runs[ges_name(*sp)]["coverage"]) for K, sp in zip(run.preset.ksens_K, specs)}
+
+
+# --- computational cost -------------------------------------------------------------------------------------
+@dataclass
+class PerDesignBO:
+    """The cost baseline's objective: every TPE trial trains a fresh PPO policy on its one design with the
+    per-policy budget (ppo_steps), then scores it. The policy folder is named by the design, so a killed
+    trial resumes its own training."""
+    run: Run
+    task: str
+    space: ges.DesignSpace
+
+    def __call__(self, theta):
+        full = self.space.full(theta)
+        name = hashlib.sha1(np.asarray(theta, dtype=float).tobytes()).hexdigest()[:12]
+        ckpt = train_policy(self.run.path("policies", "bo", name), "mlp", self.task, ballu.FixedDesign(full[0]),
+                            self.run.preset.ppo_steps, self.run.preset, derive_seed(self.run.seed, "bo", name),
+                            self.run.workers, f"bo {name}")
+        return float(ballu.score(ppo.load_policy(ckpt), full, self.task, episodes=self.run.preset.score_episodes)[0])
+
+
+def stage_cost(run: Run) -> dict:
+    """GES co-design (stage 1 + TPE with the router) vs per-design BO (TPE, a fresh PPO policy per trial), same
+    machine, same trial count, on the preset's cost task/space (paper: 3D). If cost_trials < tpe_trials, BO
+    time is the measured mean per trial x tpe_trials (said so in the report)."""
+    p = run.preset
+    t, s = p.cost_task, p.cost_space
+    space = space_of(p, t, s)
+    ges_summary = read_json(run.path("stages", "ges.json"))["result"][ges_name(t, s, run.K(s), "fps+lloyd")]
+    router = read_json(run.path("stages", "table2.json"))["result"]["peaks"][f"{t}-{s}-ges"]
+
+    os.makedirs(run.path("tpe"), exist_ok=True)
+
+    def after(study, trial):
+        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={trial.y} ({trial.seconds:.0f}s)")
+        kill_hook(f"cost:trial{trial.index}")
+
+    study = tpe.optimize(PerDesignBO(run, t, space), space.lo, space.hi, p.cost_trials,
+                         seed=derive_seed(run.seed, "tpe", t, s),
+                         config=tpe.TPEConfig(direction="maximize", n_startup=p.tpe_startup),
+                         path=run.path("tpe", f"{t}-{s}-per-design-bo.json"), names=list(space.names),
+                         callback=after, verbose=False)
+    bo_measured = float(sum(tr.seconds or 0.0 for tr in study.trials))
+    bo_total = bo_measured / len(study.trials) * p.tpe_trials
+    ges_total = ges_summary["stage1_seconds"] + router["seconds"]
+    return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
+            "extrapolated": len(study.trials) < p.tpe_trials, "bo_measured_s": bo_measured, "bo_s": bo_total,
+            "ges_stage1_s": ges_summary["stage1_seconds"], "ges_tpe_s": router["seconds"], "ges_s": ges_total,
+            "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
+            "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"]}
+
+
+# --- figures ------------------------------------------------------------------------------------------------
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def fig_distributions(run: Run, t2: dict, path: str) -> str:
+    """Fig. 3: score distribution per method on the test designs, per task and space; paper means as red x."""
+    plt = _plt()
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
+    for i, t in enumerate(TASKS):
+        for j, s in enumerate(SPACES):
+            ax, cell = axes[i, j], t2["cells"][f"{t}-{s}"]
+            data = [cell[m]["scores"] for m in METHODS]
+            ax.boxplot(data, showmeans=True, meanprops=dict(marker="o", mfc="k", mec="k", ms=5))
+            for k, m in enumerate(METHODS):
+                jitter = np.random.default_rng(k).uniform(-0.12, 0.12, len(data[k]))
+                ax.plot(k + 1 + jitter, data[k], ".", alpha=0.35, color="C0")
+                paper = PAPER_TABLE2[(t, s)].get(m)
+                if paper is not None:
+                    ax.plot(k + 1, paper, "rx", ms=9, mew=2)
+            ax.set_xticks(range(1, len(METHODS) + 1), [METHOD_NAMES[m] for m in METHODS], fontsize=8)
+            ax.set_ylabel(f"J [{UNIT[t]}]")
+            ax.set_title(f"{t}, {s.upper()} (K={run.K(s)}), {len(data[0])} test designs", fontsize=10)
+    fig.suptitle("Fig. 3: performance distributions (box; black dot = our mean; red x = paper mean)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def distinct_designs(space: ges.DesignSpace, n: int, seed: int) -> np.ndarray:
+    """n designs from distinct regions: farthest point sampling on a uniform pool (as GES's own init)."""
+    rng = np.random.default_rng(seed)
+    pts = ges.farthest_point_sampling(rng.random((2000, space.d)), n, rng)
+    return space.from_unit(pts[np.lexsort(pts.T[::-1])])
+
+
+def fig_experts(run: Run, path: str) -> tuple:
+    """Fig. 4: expert contributions on 10 designs from distinct regions: the e2e MoE's soft gate weights vs
+    GES's density router (a hard choice), obstacle D3 (6 experts each); gate entropy normalised by log K."""
+    plt = _plt()
+    t, s = "obstacle", "d3"
+    space = space_of(run.preset, t, s)
+    theta = distinct_designs(space, 10, derive_seed(run.seed, "fig4"))
+    full = space.full(theta)
+    gate = load_method(run, "moe", t, s).gate_weights(ballu.normalise_design(full).astype(np.float32))
+    routed = load_method(run, "ges", t, s)
+    ks = routed.route_designs(theta)
+    hard = np.eye(len(routed.experts))[ks]
+    ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    labels = [" ".join(f"{v:.3g}" for v in row) for row in theta]
+    for ax, w, title in ((axes[0], gate, f"e2e MoE gate weights (normalised entropy {ent:.2f})"),
+                         (axes[1], hard, "GES density router (entropy 0)")):
+        im = ax.imshow(w, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+        ax.set_yticks(range(len(labels)), labels, fontsize=7)
+        ax.set_xticks(range(w.shape[1]), [f"E{k}" for k in range(w.shape[1])])
+        ax.set_xlabel("expert / specialist")
+        ax.set_title(title, fontsize=10)
+        for (a, b), v in np.ndenumerate(w):
+            ax.text(b, a, f"{v:.2f}", ha="center", va="center", fontsize=6, color="w" if v < 0.5 else "k")
+    axes[0].set_ylabel(" ".join(space.names))
+    fig.colorbar(im, ax=axes, shrink=0.8)
+    fig.suptitle(f"Fig. 4: expert contributions on 10 distinct designs ({t}, {s.upper()})")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path, ent, gate.tolist(), ks.tolist()
+
+
+def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) -> np.ndarray:
+    """Left/right toe z over one episode (steps, 2): a 1-lane BalluEnv, toe tips from the env's own state."""
+    env = ballu.BalluEnv(1, ballu.BalluConfig(task=task), curriculum=False)
+    try:
+        obs, _ = env.reset(seed=0, options={"designs": design_full, "levels": level})
+        z = []
+        for _ in range(env.cfg.episode_steps):
+            obs, *_ = env.step(policy(obs))
+            z.append(env._read_state()[4][0, :, 2])
+    finally:
+        env.close()
+    return np.array(z)
+
+
+def fig_toes(run: Run, t2: dict, path: str) -> str:
+    """Fig. 5: toe heights of the K specialists of obstacle D2 on one design (the GES peak) at a 30 cm obstacle
+    (level 30 = 30.1 cm) at x = 0.5 m."""
+    plt = _plt()
+    space = space_of(run.preset, "obstacle", "d2")
+    peak = t2["peaks"]["obstacle-d2-ges"]["peak_design"]
+    full = space.full([peak[n] for n in space.names])
+    routed = load_method(run, "ges", "obstacle", "d2")
+    fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    dt = ballu.BalluConfig().control_dt
+    for k, expert in enumerate(routed.experts):
+        z = toe_heights(expert, full)
+        tt = np.arange(len(z)) * dt
+        for side in range(2):
+            axes[side].plot(tt, 100 * z[:, side], color=ges.COLORS[k % len(ges.COLORS)], label=f"specialist {k}")
+    for side, name in enumerate(("left", "right")):
+        axes[side].axhline(30.1, color="gray", ls="--", lw=1)
+        axes[side].set_ylabel(f"{name} toe z [cm]")
+    axes[1].set_xlabel("time [s]")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Fig. 5: toe heights of {len(routed.experts)} GES specialists on design "
+                 f"{np.round(full[0], 4).tolist()} facing a 30 cm obstacle (dashed)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def fig_ksens(ks: dict, path: str) -> str:
+    """Fig. 7: GES mean score (+- std over test designs) against K."""
+    plt = _plt()
+    K = sorted(int(k) for k in ks)
+    m, sd = [ks[str(k)]["mean"] for k in K], [ks[str(k)]["std"] for k in K]
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.errorbar(K, m, yerr=sd, fmt="o-", capsize=3, label="ours (mean +- std over test designs)")
+    ax.axvline(PAPER_KSENS_PEAK_K, color="r", ls="--", lw=1, label=f"paper: peak at K={PAPER_KSENS_PEAK_K}")
+    ax.set(xlabel="K (specialists)", ylabel="GES mean J [cm]", title="Fig. 7: K sensitivity (obstacle, D2)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def fig_sensitivity(run: Run, t2: dict, path: str) -> str:
+    """Fig. 8: the GES score over D2 for both tasks, interpolated between the test designs (dots)."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, t in zip(axes, TASKS):
+        th = run.test_designs(t, "d2")
+        z = np.array(t2["cells"][f"{t}-d2"]["ges"]["scores"])
+        if len(z) >= 4 and np.ptp(z) > 0:
+            try:
+                cs = ax.tricontourf(th[:, 0], th[:, 1], z, levels=12, cmap="viridis")
+                fig.colorbar(cs, ax=ax, label=f"J [{UNIT[t]}]")
+            except (ValueError, RuntimeError):   # degenerate triangulation: dots only
+                pass
+        sc = ax.scatter(th[:, 0], th[:, 1], c=z, cmap="viridis", edgecolors="k", s=25)
+        if len(z) < 4 or np.ptp(z) == 0:
+            fig.colorbar(sc, ax=ax, label=f"J [{UNIT[t]}]")
+        space = space_of(run.preset, t, "d2")
+        ax.set(xlabel="GCR", ylabel="SPCF", xlim=(space.lo[0], space.hi[0]), ylim=(space.lo[1], space.hi[1]),
+               title=f"{t}: GES score over D2 ({len(z)} test designs)")
+    fig.suptitle("Fig. 8: design sensitivity of GES performance")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def level_of(task: str, score: float) -> int:
+    """Invert ballu.level_score: the curriculum level a score J stands for."""
+    h = score / 100.0 if task == "obstacle" else 1.5 * math.tan(math.radians(score))
+    return int(np.clip(round((h - 0.001) / (0.01 if task == "obstacle" else 0.02)), 0, ballu.MAX_LEVEL))
+
+
+def read_log(path: str) -> dict:
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    return {k: np.array([float(r[k]) for r in rows]) for k in ("steps", "episode_return", "mean_level")}
+
+
+def fig_curves(logs: list, path: str, title: str) -> str:
+    """Learning curves (episode return, curriculum level vs control steps) of several policies in one figure."""
+    plt = _plt()
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
+    for label, csv_paths in logs:
+        parts = [read_log(c) for c in csv_paths if os.path.exists(c) and os.path.getsize(c) > 0]
+        parts = [p for p in parts if len(p["steps"])]
+        if not parts:
+            continue
+        d = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        ax[0].plot(d["steps"], d["episode_return"], label=label)
+        ax[1].plot(d["steps"], d["mean_level"], label=label)
+    ax[0].set(xlabel="control steps", ylabel="episode return (last 100)")
+    ax[1].set(xlabel="control steps", ylabel="mean curriculum level")
+    ax[1].legend(fontsize=7, loc="best")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def ges_logs(run: Run, name: str, K: int) -> list:
+    """Each specialist's per-round CSVs, in round order (steps are cumulative across rounds)."""
+    ck = run.path("ges", name, ges.CKPT_DIR)
+    files = sorted(os.listdir(ck)) if os.path.isdir(ck) else []
+    return [(f"specialist {k}", [os.path.join(ck, f) for f in files if f.startswith(f"spec{k}_") and
+                                 f.endswith(".csv")]) for k in range(K)]
+
+
+def stage_figures(run: Run) -> dict:
+    """Every figure: Figs. 1, 3-8 and the learning curves of every trained policy."""
+    t2 = read_json(run.path("stages", "table2.json"))["result"]
+    ks = read_json(run.path("stages", "ksens.json"))["result"]
+    fdir = run.path("figures")
+    os.makedirs(fdir, exist_ok=True)
+    figs = {"fig3": fig_distributions(run, t2, os.path.join(fdir, "fig3_distributions.png"))}
+    path, ent, gate, ks_routed = fig_experts(run, os.path.join(fdir, "fig4_expert_contributions.png"))
+    figs["fig4"] = path
+    figs["fig5"] = fig_toes(run, t2, os.path.join(fdir, "fig5_toe_heights.png"))
+    for t in TASKS:
+        for s in SPACES:
+            name = ges_name(t, s, run.K(s), "fps+lloyd")
+            figs[f"fig6-{t}-{s}"] = ges.plot_territories(read_json(run.path("ges", name, ges.HISTORY_FILE)),
+                                                          os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
+    figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
+    figs["fig8"] = fig_sensitivity(run, t2, os.path.join(fdir, "fig8_design_sensitivity.png"))
+    for t in TASKS:   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level
+        s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
+        pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
+        full = space.full([pk["peak_design"][n] for n in space.names])[0]
+        figs[f"fig1-{t}"] = ballu.motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), load_method(run, "ges", t, s),
+                                               t, level_of(t, pk["peak"]), full)
+    cdir = os.path.join(fdir, "curves")
+    os.makedirs(cdir, exist_ok=True)
+    for t in TASKS:
+        logs = [("baseline design", [run.path("policies", f"baseline-{t}", "log.csv")])]
+        logs += [(f"{m} {s}", [run.path("policies", f"{m}-{t}-{s}", "log.csv")])
+                 for s in SPACES for m in ("mlp", "moe")]
+        figs[f"curves-e2e-{t}"] = fig_curves(logs, os.path.join(cdir, f"e2e_{t}.png"),
+                                             f"{t}: baseline-design policy, e2e MLP and MoE")
+    for name in sorted(os.listdir(run.path("ges"))):
+        K = int(name.split("-K")[1].split("-")[0])
+        figs[f"curves-ges-{name}"] = fig_curves(ges_logs(run, name, K), os.path.join(cdir, f"ges_{name}.png"),
+                                                f"GES {name}: specialists (rounds concatenated)")
+    bo = run.path("policies", "bo")
+    if os.path.isdir(bo):
+        figs["curves-bo"] = fig_curves([(n, [os.path.join(bo, n, "log.csv")]) for n in sorted(os.listdir(bo))],
+                                       os.path.join(cdir, "per_design_bo.png"), "per-design BO: one policy per trial")
+    return {"files": {k: os.path.relpath(v, run.out) for k, v in figs.items()}, "moe_gate_entropy": ent,
+            "moe_gate_weights": gate, "ges_routes": ks_routed}
+
+
+STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges": (stage_ges, ()),
+          "table2": (stage_table2, ("baselines", "ges")), "table3": (stage_table3, ("ges", "table2")),
+          "ksens": (stage_ksens, ("ges", "table2")), "cost": (stage_cost, ("ges", "table2")),
+          "figures": (stage_figures, ("table2", "table3", "ksens"))}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 6. REPORT.md and results.json
+# ----------------------------------------------------------------------------------------------------------
+def cell(ours, paper, fmt="{:.1f}") -> str:
+    """'ours (paper)'; a missing number is '-'."""
+    o = "-" if ours is None else fmt.format(ours)
+    p = "-" if paper is None else fmt.format(paper)
+    return f"{o} ({p})"
+
+
+def stage_result(run: Run, name: str):
+    path = run.path("stages", f"{name}.json")
+    return read_json(path)["result"] if os.path.exists(path) else None
+
+
+def report(run: Run, manifest: dict) -> str:
+    """Write REPORT.md and results.json from whatever stages have finished."""
+    p, R = run.preset, {n: stage_result(run, n) for n in STAGES}
+    times = read_json(run.path("stage_seconds.json")) if os.path.exists(run.path("stage_seconds.json")) else {}
+    L = [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
+         "Every cell is **ours (paper)**. Paper numbers are constants in run_all.py quoted from "
+         "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
+         "budgets below). '-' = not measured yet / not given by the paper.", "",
+         f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
+         f"code hash {manifest['code_hash']}",
+         f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps per "
+         f"update); GES {p.ges_round_steps:,} steps per specialist per round, <= {p.ges_max_rounds} rounds, "
+         f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
+         f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE trials "
+         f"({p.tpe_startup} random first); {p.score_episodes} episodes per score J (paper: 20); "
+         f"design bounds: {p.ranges}", ""]
+    if R["table1"]:
+        L += ["## Table I: design space and baseline design", "",
+              "| parameter | lower | upper | baseline |", "|---|---|---|---|"]
+        for n, (lo, hi, b) in R["table1"]["rows"].items():
+            pl, ph, pb = PAPER_TABLE1[n]
+            L.append(f"| {n} | {cell(lo, pl, '{:g}')} | {cell(hi, ph, '{:g}')} | {cell(b, pb, '{:g}')} |")
+        L.append("")
+    t2 = R["table2"]
+    if t2:
+        L += [f"## Table II: mean score J over {p.n_test} uniform test designs (cm obstacle, deg ramp)", "",
+              "| task | space | baseline design | baseline policy | e2e MLP | e2e MoE | GES |",
+              "|---|---|---|---|---|---|---|"]
+        for t in TASKS:
+            for s in SPACES:
+                c, pp = t2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
+                L.append(f"| {t} | {s.upper()} | {cell(t2['design'][t], pp['design'])} | "
+                         f"{cell(c['baseline']['mean'], None)} | {cell(c['mlp']['mean'], pp['mlp'])} | "
+                         f"{cell(c['moe']['mean'], pp['moe'])} | {cell(c['ges']['mean'], pp['ges'])} |")
+        L += ["", "'baseline design' = the baseline design's own policy at the baseline design (1 design); "
+              "'baseline policy' = that policy on the test designs (not in the paper).", "",
+              f"### Peaks found by TPE ({p.tpe_trials} trials maximising each method's J)", "",
+              "| task | space | method | peak J | peak design | paper's peak design |", "|---|---|---|---|---|---|"]
+        for t in TASKS:
+            for s in SPACES:
+                for m in ("mlp", "moe", "ges"):
+                    pk = t2["peaks"][f"{t}-{s}-{m}"]
+                    des = " ".join(f"{k}={v:.4g}" for k, v in pk["peak_design"].items())
+                    pd = PAPER_PEAK_DESIGN[(t, s)] if m == "ges" else None
+                    L.append(f"| {t} | {s.upper()} | {METHOD_NAMES[m]} | {cell(pk['peak'], PAPER_PEAK[(t, s)][m])} "
+                             f"| {des} | {pd or '-'} |")
+        L += ["", "### Head-to-head: % of test designs where GES scores higher (ties in brackets, ours only)", "",
+              "| task | space | vs baseline policy | vs e2e MLP | vs e2e MoE |", "|---|---|---|---|---|"]
+        for t in TASKS:
+            for s in SPACES:
+                w = t2["cells"][f"{t}-{s}"]["ges_wins"]
+                L.append(f"| {t} | {s.upper()} | " + " | ".join(
+                    f"{cell(w[m]['win_pct'], PAPER_WINS[(t, s)].get(m), '{:.0f}')} [ties {w[m]['tie_pct']:.0f}]"
+                    for m in ("baseline", "mlp", "moe")) + " |")
+        L.append("")
+    if R["table3"]:
+        L += [f"## Table III: GES initialisation (K = {p.K_d2}, obstacle, D2, {p.n_test} test designs, cm)", "",
+              "| init | mean | min | max | GES rounds | final coverage |", "|---|---|---|---|---|---|"]
+        for init, r in R["table3"].items():
+            pm = PAPER_TABLE3.get(init, (None, None, None))
+            L.append(f"| {init} | {cell(r['mean'], pm[0])} | {cell(r['min'], pm[1], '{:.0f}')} | "
+                     f"{cell(r['max'], pm[2], '{:.0f}')} | {r['rounds']} | {r['coverage']:.1%} |")
+        L.append("")
+    if R["ksens"]:
+        best = max(R["ksens"], key=lambda k: R["ksens"][k]["mean"])
+        L += ["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
+              f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", "",
+              "| K | mean | std | min | max | GES rounds | final coverage |", "|---|---|---|---|---|---|---|"]
+        for K, r in R["ksens"].items():
+            L.append(f"| {K} | {r['mean']:.1f} | {r['std']:.1f} | {r['min']:.0f} | {r['max']:.0f} | {r['rounds']} | "
+                     f"{r['coverage']:.1%} |")
+        L.append("")
+    if R["ges"]:
+        L += ["## GES stage 1 runs", "", "| run | rounds | final coverage |", "|---|---|---|"]
+        L += [f"| {n} | {r['rounds']} | {r['coverage']:.1%} |" for n, r in R["ges"].items()]
+        L.append("")
+    c = R["cost"]
+    if c:
+        ex = (f" (per-design BO: {c['bo_trials_run']} trials measured, extrapolated to {c['trials']})"
+              if c["extrapolated"] else "")
+        L += [f"## Computational cost ({c['task']}, {c['space'].upper()}, {c['trials']} TPE trials, this machine, "
+              f"wall time){ex}", "",
+              "| | ours | paper |", "|---|---|---|",
+              f"| per-design BO wall time | {c['bo_s']:.0f} s | {PAPER_COST['bo_h']:.0f} h |",
+              f"| GES co-design wall time (stage 1 + TPE with router) | {c['ges_s']:.0f} s "
+              f"({c['ges_stage1_s']:.0f} + {c['ges_tpe_s']:.0f}) | {PAPER_COST['ges_h']:.0f} h |",
+              f"| reduction of wall time | {c['reduction_pct']:.0f} % | {PAPER_COST['reduction_pct']:.0f} % |",
+              f"| best J found: per-design BO / GES | {c['bo_peak']:.1f} / {c['ges_peak']:.1f} | - |", ""]
+    if R["figures"]:
+        L += ["## Figures", "", f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
+              f"collapse; paper: 'nearly equal weight'): {R['figures']['moe_gate_entropy']:.2f}; GES: 0 (hard).", ""]
+        L += [f"- {k}: [{v}]({v})" for k, v in R["figures"]["files"].items()]
+        L.append("")
+    L += ["## Wall time per stage (all attempts)", "", "| stage | wall time |", "|---|---|"]
+    L += [f"| {n} | {times[n]:.0f} s |" for n in STAGES if n in times]
+    text = "\n".join(L) + "\n"
+    with open(run.path("REPORT.md"), "w") as fh:
+        fh.write(text)
+    write_json(run.path("results.json"), {"manifest": manifest, "stages": R, "stage_seconds": times})
+    return text
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. Command line
+# ----------------------------------------------------------------------------------------------------------
+def parse(argv):
+    ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
+    ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
+    ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(STAGES)}")
+    ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fresh", action="store_true", help="delete this run's earlier results and start over")
+    return ap.parse_args(argv)
+
+
+def check_args(args) -> tuple:
+    """Validate everything before anything is written; BadInput -> exit code 2."""
+    only = [s for s in args.only.split(",") if s] if args.only else list(STAGES)
+    bad = [s for s in only if s not in STAGES]
+    if bad:
+        raise BadInput(f"unknown stage(s) {bad} in --only; known: {','.join(STAGES)}")
+    if args.workers < 1:
+        raise BadInput(f"--workers={args.workers} must be >= 1")
+    if args.seed < 0:
+        raise BadInput(f"--seed={args.seed} must be >= 0")
+    return [s for s in STAGES if s in only]
+
+
+def open_output(out: str, manifest: dict, fresh: bool) -> None:
+    """Create or reuse the output folder: refuse one made by another preset / seed / code version (unless
+    --fresh), refuse to touch a non-empty folder that is not ours, and make sure it is writable."""
+    mpath = os.path.join(out, "manifest.json")
+    if os.path.isdir(out) and os.listdir(out):
+        if not os.path.exists(mpath):
+            raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; "
+                           "choose another --out")
+        old = read_json(mpath)
+        keys = ("results_format", "preset", "budgets", "seed", "code_hash")
+        diff = [k for k in keys if old.get(k) != manifest[k]]
+        if diff and not fresh:
+            raise BadInput(f"{out} holds results of a different " + ", ".join(
+                f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
+                for k in diff) + "; rerun with --fresh to start over or choose another --out")
+        if fresh:
+            shutil.rmtree(out)
+        else:
+            return
+    elif os.path.exists(out) and not os.path.isdir(out):
+        raise BadInput(f"--out {out} exists and is not a folder")
+    try:
+        os.makedirs(out, exist_ok=True)
+        write_json(mpath, manifest)
+    except OSError as e:
+        raise BadInput(f"cannot write to output folder {out}: {e}") from None
+
+
+def check_needs(run: Run, stages: list) -> None:
+    """Each requested stage's inputs must be finished already or be requested before it."""
+    have = {n for n in STAGES if os.path.exists(run.path("stages", f"{n}.json"))}
+    for name in stages:
+        missing = [n for n in STAGES[name][1] if n not in have]
+        if missing:
+            raise BadInput(f"stage {name} needs stage(s) {missing} first (run them too, or drop --only)")
+        have.add(name)
+
+
+def run_stage(run: Run, name: str) -> None:
+    """Run one stage unless its result exists; record its wall time (summed over attempts)."""
+    path = run.path("stages", f"{name}.json")
+    if os.path.exists(path):
+        say(f"stage {name}: done already, skipped")
+        return
+    fn = STAGES[name][0]
+    say(f"stage {name}: start")
+    t0 = time.time()
+    try:
+        result = fn(run)
+    finally:
+        tp = run.path("stage_seconds.json")
+        times = read_json(tp) if os.path.exists(tp) else {}
+        times[name] = times.get(name, 0.0) + time.time() - t0
+        write_json(tp, times)
+    write_json(path, {"stage": name, "result": result})
+    say(f"stage {name}: done in {time.time() - t0:.1f}s")
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    preset = PRESETS[args.preset]
+    out = os.path.abspath(args.out or os.path.join(HERE, "results", preset.name))
+    try:
+        stages = check_args(args)
+        manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
+                    "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed, "code_hash": code_hash(),
+                    "git_commit": git_commit(), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+        open_output(out, manifest, args.fresh)
+        manifest = read_json(os.path.join(out, "manifest.json"))
+        run = Run(out, preset, args.seed, args.workers)
+        check_needs(run, stages)
+        t0 = time.time()
+        say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s), output {out}, stages {stages}")
+        try:
+            for name in stages:
+                run_stage(run, name)
+        finally:
+            report(run, manifest)
+        say(f"all requested stages done in {time.time() - t0:.1f}s; see {os.path.join(out, 'REPORT.md')}")
+        return 0
+    except BadInput as e:
+        print(f"run_all.py: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
