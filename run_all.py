@@ -19,6 +19,8 @@ Read top to bottom:
   6. REPORT.md: every table with each cell as "ours (paper)", the budgets, seed, commit, wall times
   7. the command line
 
+Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
+
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
 policies/, ges/, tpe/, stages/). Every stage writes its artifacts when it finishes and long stages checkpoint
 inside (PPO via ppo.train's checkpoint, GES via run_ges's run_dir, TPE via its study file), so a rerun skips
@@ -128,30 +130,34 @@ class Preset:
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
 
 
-# smoke: the whole pipeline with tiny budgets (numbers mean nothing) in about a minute on 2 cores.
-# Measured here on a loaded 2-core machine: see the final report / test; scoring 1 episode x 400 steps per
-# design, 2 GES rounds x 2 probes, 3 test designs, 3 TPE trials, 128 PPO steps per policy.
+# smoke: the whole pipeline with tiny budgets (the numbers mean nothing) to check that every stage, table and
+# figure works: 128 PPO steps per policy, 2 GES rounds x 2 probes, 3 test designs, 3 TPE trials, 1 episode per
+# score. Measured here (2 cores, both busy with other training): ~65 s with --workers 1, ~80 s with 2.
 SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollout=16, score_episodes=1,
                n_test=3, tpe_trials=3, tpe_startup=2, K_d2=3, K_d3=6, ges_max_rounds=2, ges_target_coverage=0.95,
                ges_probes=2, ges_probe_pool=50, ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2)
 
-# quick: every table and figure in about 2 h on this 2-core machine. Rates measured here: PPO ~1,750 control
-# steps/s per core (3,000-4,000/s on both), scoring ~2,000 control steps/s per core, one score J =
-# 20 episodes x 400 steps = 8,000 steps = 4 core-s. Work (core-seconds):
-#   PPO: 10 policies (2 baseline-design + 4 MLP + 4 MoE) x 100k                                   =  1.0 M steps
+# quick: every table and figure in about 2 h on this 2-core machine. Rates measured here with both cores busy
+# with other training (so an idle machine is faster): PPO ~1,900 control steps/s in one process (16 lanes;
+# the lead measures 3,000-4,000/s on both cores); one score J = 20 episodes x 400 steps = 8,000 steps costs
+# ~2.9 core-s when designs are scored in batches of 16 lanes and ~4.7 s for a single lane (a TPE trial).
+# Work, in core-seconds:
+#   PPO: 10 policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 150k                           =  1.5 M steps
 #        GES specialists: 4 main runs (3+3+6+6) + Table III (3 runs x 3) + K-sens (1+2+4+5+6) = 45,
-#        x 3 rounds x 33k                                                                         =  4.5 M steps
-#        per-design BO: 20 trials x 100k                                                          =  2.0 M steps
-#        7.5 M steps / 1,750 per core-s                                                           ~  4,300 core-s
-#   GES probes: 45 specialists x 3 rounds x 6 probes x 4 core-s                                   ~  3,250 core-s
-#   test designs: (16 Table II + 3 Table III + 5 K-sens) score sets x 32 designs x 4 core-s        ~  3,100 core-s
-#   TPE: 12 searches (3 methods x 4 task/space) x 20 trials x 4 core-s, + BO scoring 20 x 4        ~  1,050 core-s
+#        x 3 rounds x 50k                                                                         =  6.75 M steps
+#        per-design BO: 20 trials x 150k                                                          =  3.0 M steps
+#        11.25 M steps / 1,900 per core-s                                                         ~  5,900 core-s
+#   GES probes: 45 specialists x 3 rounds x F = 6 probes = 810 J x ~3.5 core-s (batches of 6)     ~  2,850 core-s
+#   test designs: (16 Table II + 3 Table III + 5 K-sens) sets x 32 designs = 768 J x 2.9 core-s   ~  2,250 core-s
+#   TPE: (12 searches (3 methods x 4 task/space) + 1 per-design BO) x 20 trials x 4.7 s            ~  1,200 core-s
 #   figures (strips, toe heights, plots)                                                         ~    100 core-s
-#   total ~ 11,800 core-s / 2 cores ~ 1 h 40 min, ~ 2 h with pool and spawn overheads.
-# Scaling for the lead: every +100k of ppo_steps (with ges_round_steps = ppo_steps / 3) adds
-# (10 + 45 + 20) x 100k / 3,500 steps/s ~ 36 min; every +16 test designs ~ 13 min; +10 TPE trials ~ 10 min.
-QUICK = Preset("quick", ppo_steps=100_000, ges_round_steps=33_000, ppo_envs=16, ppo_rollout=64,
+#   total ~ 12,300 core-s / 2 cores ~ 1 h 45 min; a GES round of K = 3 or 5 specialists leaves one of the 2
+#   pool workers idle part of the time (~ +15 min), so ~ 2 h.
+# Scaling for the lead: ppo_steps +50k (with ges_round_steps = ppo_steps / ges_max_rounds) adds
+# (10 + 45 + 20) x 50k / 3,800 steps/s ~ 16 min; n_test +16 ~ 10 min; tpe_trials (= cost_trials) +10 ~ 25 min
+# (the per-design BO trials train a policy each); ges_probes +6 ~ 25 min.
+QUICK = Preset("quick", ppo_steps=150_000, ges_round_steps=50_000, ppo_envs=16, ppo_rollout=64,
                score_episodes=20, n_test=32, tpe_trials=20, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=3,
                ges_target_coverage=0.95, ges_probes=6, ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000,
                ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
@@ -505,7 +511,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         times[str(r)] = time.time() - last[0]
         last[0] = time.time()
         write_json(times_path, times)
-        say(f"  GES {name}: {msg}")
+        eta = np.mean(list(times.values())) * (config.max_rounds - r)
+        say(f"  GES {name}: {msg}  (eta <= {eta:.0f}s: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
     res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p),
@@ -781,12 +788,12 @@ def fig_experts(run: Run, path: str) -> tuple:
     ks = routed.route_designs(theta)
     hard = np.eye(len(routed.experts))[ks]
     ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4), layout="constrained")
     labels = [" ".join(f"{v:.3g}" for v in row) for row in theta]
     for ax, w, title in ((axes[0], gate, f"e2e MoE gate weights (normalised entropy {ent:.2f})"),
                          (axes[1], hard, "GES density router (entropy 0)")):
         im = ax.imshow(w, vmin=0, vmax=1, cmap="viridis", aspect="auto")
-        ax.set_yticks(range(len(labels)), labels, fontsize=7)
+        ax.set_yticks(range(len(labels)), labels if ax is axes[0] else [""] * len(labels), fontsize=7)
         ax.set_xticks(range(w.shape[1]), [f"E{k}" for k in range(w.shape[1])])
         ax.set_xlabel("expert / specialist")
         ax.set_title(title, fontsize=10)
@@ -1119,42 +1126,50 @@ def check_args(args) -> tuple:
     return [s for s in STAGES if s in only]
 
 
-def open_output(out: str, manifest: dict, fresh: bool) -> None:
-    """Create or reuse the output folder: refuse one made by another preset / seed / code version (unless
-    --fresh), refuse to touch a non-empty folder that is not ours, and make sure it is writable."""
+def check_output(out: str, manifest: dict, fresh: bool) -> bool:
+    """Read-only check of the output folder; True if it holds this very run (reuse its finished work).
+    Refuses a non-empty folder that is not ours, and one made by another preset / budgets / seed / code
+    version unless --fresh."""
     mpath = os.path.join(out, "manifest.json")
-    if os.path.isdir(out) and os.listdir(out):
-        if not os.path.exists(mpath):
-            raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; "
-                           "choose another --out")
-        old = read_json(mpath)
-        keys = ("results_format", "preset", "budgets", "seed", "code_hash")
-        diff = [k for k in keys if old.get(k) != manifest[k]]
-        if diff and not fresh:
-            raise BadInput(f"{out} holds results of a different " + ", ".join(
-                f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
-                for k in diff) + "; rerun with --fresh to start over or choose another --out")
-        if fresh:
-            shutil.rmtree(out)
-        else:
-            return
-    elif os.path.exists(out) and not os.path.isdir(out):
+    if os.path.exists(out) and not os.path.isdir(out):
         raise BadInput(f"--out {out} exists and is not a folder")
-    try:
-        os.makedirs(out, exist_ok=True)
-        write_json(mpath, manifest)
-    except OSError as e:
-        raise BadInput(f"cannot write to output folder {out}: {e}") from None
+    if not (os.path.isdir(out) and os.listdir(out)):
+        return False
+    if not os.path.exists(mpath):
+        raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
+    old = read_json(mpath)
+    keys = ("results_format", "preset", "budgets", "seed", "code_hash")
+    diff = [k for k in keys if old.get(k) != manifest[k]]
+    if diff and not fresh:
+        raise BadInput(f"{out} holds results of a different " + ", ".join(
+            f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
+            for k in diff) + "; rerun with --fresh to start over or choose another --out")
+    return not fresh
 
 
-def check_needs(run: Run, stages: list) -> None:
+def check_needs(out: str, stages: list, reuse: bool) -> None:
     """Each requested stage's inputs must be finished already or be requested before it."""
-    have = {n for n in STAGES if os.path.exists(run.path("stages", f"{n}.json"))}
+    have = {n for n in STAGES if reuse and os.path.exists(os.path.join(out, "stages", f"{n}.json"))}
     for name in stages:
         missing = [n for n in STAGES[name][1] if n not in have]
         if missing:
             raise BadInput(f"stage {name} needs stage(s) {missing} first (run them too, or drop --only)")
         have.add(name)
+
+
+def open_output(out: str, manifest: dict, reuse: bool) -> dict:
+    """Start over (wipe our own old folder) or reuse it; returns the folder's manifest."""
+    mpath = os.path.join(out, "manifest.json")
+    if reuse:
+        return read_json(mpath)
+    try:
+        if os.path.isdir(out):
+            shutil.rmtree(out)   # check_output allowed it: empty, or ours and --fresh
+        os.makedirs(out)
+        write_json(mpath, manifest)
+    except OSError as e:
+        raise BadInput(f"cannot write to output folder {out}: {e}") from None
+    return manifest
 
 
 def run_stage(run: Run, name: str) -> None:
@@ -1186,10 +1201,10 @@ def main(argv=None) -> int:
         manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
                     "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed, "code_hash": code_hash(),
                     "git_commit": git_commit(), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
-        open_output(out, manifest, args.fresh)
-        manifest = read_json(os.path.join(out, "manifest.json"))
+        reuse = check_output(out, manifest, args.fresh)
+        check_needs(out, stages, reuse)
+        manifest = open_output(out, manifest, reuse)
         run = Run(out, preset, args.seed, args.workers)
-        check_needs(run, stages)
         t0 = time.time()
         say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s), output {out}, stages {stages}")
         try:
