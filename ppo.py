@@ -35,6 +35,7 @@ class PPOConfig:
     """PPO settings: [facts] = the authors' runs (ballu_facts.md), [ours] = adapted to a 2-core CPU."""
     hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
     init_std: float = 0.5              # [facts] initial action std (state independent)
+    init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
     lr: float = 1e-4                   # [facts] initial learning rate, then adaptive KL
     desired_kl: float = 0.01           # [facts] adaptive-KL target
     clip: float = 0.2                  # [facts]
@@ -106,6 +107,7 @@ class MLPActorCritic(nn.Module):
     def __init__(self, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfig()):
         super().__init__()
         self.actor = mlp([obs_dim, *cfg.hidden, act_dim], out_gain=0.01)
+        nn.init.constant_(self.actor[-1].bias, cfg.init_action_mean)
         self.critic = mlp([obs_dim, *cfg.hidden, 1], out_gain=1.0)
         self.log_std = nn.Parameter(torch.full((act_dim,), math.log(cfg.init_std)))
 
@@ -130,6 +132,8 @@ class MoEActorCritic(nn.Module):
         super().__init__()
         self.design_dim, self.k, self.lb = cfg.design_dim, cfg.moe_experts, cfg.load_balance_coef
         self.experts = nn.ModuleList(mlp([obs_dim, *cfg.hidden, act_dim], out_gain=0.01) for _ in range(self.k))
+        for e in self.experts:
+            nn.init.constant_(e[-1].bias, cfg.init_action_mean)
         self.gate = mlp([cfg.design_dim, *cfg.gate_hidden, self.k], out_gain=0.01)
         self.critic = mlp([obs_dim, *cfg.hidden, 1], out_gain=1.0)
         self.log_std = nn.Parameter(torch.full((act_dim,), math.log(cfg.init_std)))
@@ -466,8 +470,9 @@ def _main(argv=None):
     ap.add_argument("--start-level", type=int, default=0)
     ap.add_argument("--reward", default="paper", choices=("paper", "code"))
     ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
+    ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
     args = ap.parse_args(argv)
-    cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout)
+    cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean)
     bcfg = ballu.BalluConfig(task=args.task, reward_form=args.reward)
     if args.bench:
         bench(cfg, bcfg, args.workers)
