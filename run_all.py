@@ -511,8 +511,9 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         times[str(r)] = time.time() - last[0]
         last[0] = time.time()
         write_json(times_path, times)
-        eta = np.mean(list(times.values())) * (config.max_rounds - r)
-        say(f"  GES {name}: {msg}  (eta <= {eta:.0f}s: {config.max_rounds} rounds at most)")
+        done = [v for k, v in times.items() if k != "0"]   # round 0 is the initialisation
+        eta = f"eta <= {np.mean(done) * (config.max_rounds - r):.0f}s" if done else "eta -"
+        say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
     res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p),
@@ -546,6 +547,14 @@ def load_method(run: Run, method: str, task: str, sp: str):
     if method in ("mlp", "moe"):
         return ppo.load_policy(run.path("policies", f"{method}-{task}-{sp}", "policy.pt"))
     return RoutedPolicy(run.path("ges", ges_name(task, sp, run.K(sp), "fps+lloyd")))
+
+
+def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = None) -> str:
+    """Name of a score set; a GES score set is named by its GES run, so Table II, Table III (FPS + Lloyd) and
+    Fig. 7 (K = K_d2) share the main obstacle D2 run's scores instead of scoring it three times."""
+    if method != "ges":
+        return f"test-{task}-{sp}-{method}"
+    return f"test-{task}-{sp}-ges-{ges_run or ges_name(task, sp, run.K(sp), 'fps+lloyd')}"
 
 
 def cached_scores(run: Run, key: str, make_policy, designs_full, task) -> np.ndarray:
@@ -627,7 +636,7 @@ def stage_table2(run: Run) -> dict:
         prog(i + 1, f"baseline design {t}")
     for i, (t, s, m) in enumerate(units):
         full = space_of(run.preset, t, s).full(run.test_designs(t, s))
-        sc = cached_scores(run, f"test-{t}-{s}-{m}", lambda: load_method(run, m, t, s), full, t)
+        sc = cached_scores(run, score_key(run, t, s, m), lambda: load_method(run, m, t, s), full, t)
         out["cells"].setdefault(f"{t}-{s}", {})[m] = {"mean": float(sc.mean()), "std": float(sc.std()),
                                                       "min": float(sc.min()), "max": float(sc.max()),
                                                       "scores": sc.tolist()}
@@ -659,8 +668,8 @@ def write_test_csv(run: Run, t2: dict) -> None:
 def ges_test_scores(run: Run, name: str) -> np.ndarray:
     """A GES run's routed score on the obstacle D2 test designs (shared with Table II)."""
     full = space_of(run.preset, "obstacle", "d2").full(run.test_designs("obstacle", "d2"))
-    return cached_scores(run, f"test-obstacle-d2-ges-{name}", lambda: RoutedPolicy(run.path("ges", name)),
-                         full, "obstacle")
+    return cached_scores(run, score_key(run, "obstacle", "d2", "ges", name),
+                         lambda: RoutedPolicy(run.path("ges", name)), full, "obstacle")
 
 
 def summary(s: np.ndarray) -> dict:
