@@ -128,6 +128,7 @@ class Preset:
     cost_task: str = "obstacle"  # the paper measured cost on the 3D space
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
+    ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
 
 
 # smoke: the whole pipeline with tiny budgets (the numbers mean nothing) to check that every stage, table and
@@ -272,7 +273,8 @@ def space_of(preset: Preset, task: str, sp: str) -> ges.DesignSpace:
 
 
 def ppo_config(preset: Preset) -> ppo.PPOConfig:
-    return ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout)
+    return ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout,
+                         init_action_mean=preset.ppo_init_action_mean)
 
 
 @dataclass
@@ -1017,10 +1019,11 @@ def report(run: Run, manifest: dict) -> str:
          f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
          f"code hash {manifest['code_hash']}",
          f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps per "
-         f"update); GES {p.ges_round_steps:,} steps per specialist per round, <= {p.ges_max_rounds} rounds, "
+         f"update, initial mean action {p.ppo_init_action_mean}); GES {p.ges_round_steps:,} steps per "
+         f"specialist per round, <= {p.ges_max_rounds} rounds, "
          f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
          f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE trials "
-         f"({p.tpe_startup} random first); {p.score_episodes} episodes per score J (paper: 20); "
+         f"({p.tpe_startup} random first); episodes per score J: {p.score_episodes} (paper: 20); "
          f"design bounds: {p.ranges}", ""]
     if R["table1"]:
         L += ["## Table I: design space and baseline design", "",
