@@ -166,7 +166,9 @@ QUICK = Preset("quick", ppo_steps=150_000, ges_round_steps=50_000, ppo_envs=16, 
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
 # PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For big
-# machines: --workers uses every core. Weeks on 2 cores.
+# machines: --workers uses every core. Work at the quick preset's rates: PPO 10 x 20M + 45 specialists x
+# <= 20 rounds x 1M + 40 BO trials x 20M <= 1.9 G steps (~6 days at 3,500 steps/s); probes 45 x 20 x 100 J x
+# 2.9 core-s ~ 1.5 days on 2 cores; test designs 24 x 1000 J x 2.9 core-s ~ 0.4 day: ~8-9 days on 2 cores.
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
                score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
                ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
