@@ -1057,7 +1057,7 @@ def report(run: Run, manifest: dict) -> str:
                     pd = PAPER_PEAK_DESIGN[(t, s)] if m == "ges" else None
                     L.append(f"| {t} | {s.upper()} | {METHOD_NAMES[m]} | {cell(pk['peak'], PAPER_PEAK[(t, s)][m])} "
                              f"| {des} | {pd or '-'} |")
-        L += ["", "### Head-to-head: % of test designs where GES scores higher (ties in brackets, ours only)", "",
+        L += ["", "### Head-to-head: % of test designs where GES scores higher; cells: ours (paper) [ties, ours]", "",
               "| task | space | vs baseline policy | vs e2e MLP | vs e2e MoE |", "|---|---|---|---|---|"]
         for t in TASKS:
             for s in SPACES:
