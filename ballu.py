@@ -46,6 +46,7 @@ VALID_HIGH = np.array([1.00, 1.00, 0.99, 1.0])
 
 TASKS = ("obstacle", "ramp")
 MAX_LEVEL = 74                                        # [facts] levels 0..74
+LANES_PER_BLOCK = 29    # lanes sharing one spot: collision-filter bits 1..29 (bit 0 is the ground plane)
 SCORE_START_LEVEL = {"obstacle": 28, "ramp": 40}      # [facts] the score J starts here
 
 
@@ -99,7 +100,7 @@ class BalluConfig:
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    lane_spacing: float = 4.0             # [ours] metres between lanes (collision filters isolate them anyway)
+    lane_spacing: float = 4.0             # [ours] metres between blocks of LANES_PER_BLOCK lanes
     solver_iterations: int = 10           # [ours] PyBullet contact solver iterations (measured stable)
 
     @property
@@ -313,6 +314,22 @@ def reward(task, cfg: BalluConfig, x, y_rel, vx, toe_clearance):
     return r * (cfg.control_dt if cfg.reward_dt_scale else 1.0)
 
 
+class _quiet_stdout:
+    """Silence the C-level stdout (file descriptor 1) for the duration of a with-block."""
+
+    def __enter__(self):
+        import sys
+        sys.stdout.flush()
+        self.saved = os.dup(1)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 1)
+        os.close(devnull)
+
+    def __exit__(self, *exc):
+        os.dup2(self.saved, 1)
+        os.close(self.saved)
+
+
 class FixedDesign:
     """A design sampler that always returns one design (training a per-design policy)."""
 
@@ -347,10 +364,13 @@ OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
 class BalluEnv:
     """N BALLU robots stepped together in one PyBullet world (DIRECT mode, no GUI).
 
-    Lane i lies along world x at y = i * lane_spacing with its own terrain body; collision filter groups
-    keep every lane's robot and terrain apart from all other lanes (they share only the ground plane).
-    Each lane has its own design, curriculum level and random generator (seeded from (seed, lane id)),
-    so a lane's trajectory does not depend on how many other lanes there are.
+    Lanes lie on top of each other: the first LANES_PER_BLOCK lanes of a world all sit at y = 0, each with
+    its own terrain body and its own collision-filter bit, so a robot touches only the ground plane and its
+    own terrain. Putting every lane at the same coordinates matters: a lane offset sideways changes the
+    floating-point rounding of its contacts, and this chaotic system turns rounding into different
+    trajectories. With <= LANES_PER_BLOCK lanes per world a lane's trajectory is bit-identical wherever it
+    runs (further blocks sit lane_spacing apart in y). Each lane has its own design, curriculum level and
+    random generator (seeded from (seed, lane id)).
 
     Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training), else a
     lane keeps its design (scoring). With `curriculum=True` each finished episode moves the lane's level.
@@ -365,7 +385,8 @@ class BalluEnv:
         self.design_sampler = design_sampler
         self.lane_ids = np.arange(num_envs) if lane_ids is None else np.asarray(lane_ids)
         self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
-        self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        with _quiet_stdout():   # PyBullet's C code prints "argv[0]=" on every connect
+            self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         self.cid = self.p._client
         self._tmp = tempfile.TemporaryDirectory(prefix="ballu_urdf_")
         self._build_world()
@@ -386,6 +407,7 @@ class BalluEnv:
         self.rngs = [np.random.default_rng(0) for _ in range(n)]
         self._ready = False
         self.sim_seconds = 0.0
+        self._lane_ys = np.array([self._lane_y(i) for i in range(n)])
 
     # -- world -------------------------------------------------------------------------------------------
     def _build_world(self):
@@ -402,10 +424,10 @@ class BalluEnv:
         self._ramp_shapes = {}
 
     def _lane_bit(self, i):
-        return 1 << (1 + int(self.lane_ids[i]) % 29)
+        return 1 << (1 + i % LANES_PER_BLOCK)
 
     def _lane_y(self, i):
-        return float(self.lane_ids[i]) * self.cfg.lane_spacing
+        return float(i // LANES_PER_BLOCK) * self.cfg.lane_spacing
 
     def _set_terrain(self, i, level):
         """Place lane i's terrain for `level`: the obstacle box is moved; a ramp wedge is rebuilt."""
@@ -574,7 +596,7 @@ class BalluEnv:
         state = self._read_state()
         pos, vel, _, _, toe = state
         cfg, task = self.cfg, self.cfg.task
-        y_rel = pos[:, 1] - self.lane_ids * cfg.lane_spacing
+        y_rel = pos[:, 1] - self._lane_ys
         clearance = toe[:, :, 2] - surface_height(task, toe[:, :, 0], self.levels[:, None])
         rew = reward(task, cfg, pos[:, 0], y_rel, vel[:, 0], clearance.min(axis=1))
         finite = np.isfinite(pos).all(1) & np.isfinite(vel).all(1) & np.isfinite(rew)
@@ -777,26 +799,33 @@ def stand(obs):
 
 
 class PumpGait:
-    """Scripted floor 2: both knees pulled fully for half a period, released for the other half.
+    """Scripted floor 2: knees pulled fully for half a period, released for the other half.
 
-    `period` is in control steps (20 Hz), a scalar or one per lane, so one scoring run can sweep periods.
-    The phase is a call counter: all lanes of a scoring run start their episodes together.
+    mode="sync" pumps both knees together (a hop); mode="alternate" pumps them half a period apart (a walk).
+    `period` is in control steps (20 Hz), a scalar or one per lane, so one scoring run can sweep periods;
+    `mode` may also be one per lane. The phase is a call counter: all lanes of a scoring run start their
+    episodes together.
     """
 
-    def __init__(self, period=10, amplitude: float = 1.0):
+    def __init__(self, period=10, mode="sync", amplitude: float = 1.0):
         self.period = np.asarray(period, dtype=float)
         if (self.period < 2).any():
             raise ValueError(f"period={period!r} must be >= 2 control steps")
+        self.alternate = np.asarray(mode) == "alternate"
+        if not np.isin(np.asarray(mode), ["sync", "alternate"]).all():
+            raise ValueError(f"mode={mode!r} must be 'sync' or 'alternate'")
         self.amplitude, self.t = amplitude, 0
 
     def __call__(self, obs):
         on = (self.t % self.period) < self.period / 2
         self.t += 1
-        return np.broadcast_to(np.where(on, self.amplitude, 0.0)[..., None], (len(obs), ACT_DIM)).copy()
+        left = np.where(on, self.amplitude, 0.0)
+        right = np.where(self.alternate, self.amplitude - left, left)
+        return np.broadcast_to(np.stack(np.broadcast_arrays(left, right), -1), (len(obs), ACT_DIM)).copy()
 
 
 def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_level: int | None = None,
-          workers: int = 1, cfg: BalluConfig | None = None, max_lanes: int = 256, progress=None) -> np.ndarray:
+          workers: int = 1, cfg: BalluConfig | None = None, max_lanes: int | None = None, progress=None) -> np.ndarray:
     """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
 
     The policy (any callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy) plays
@@ -809,6 +838,7 @@ def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_lev
     if episodes < 1:
         raise ValueError(f"episodes={episodes!r} must be >= 1")
     out = np.zeros(len(d))
+    max_lanes = max_lanes or LANES_PER_BLOCK * workers   # <= one block per world: lane-independent scores
     for c0 in range(0, len(d), max_lanes):
         chunk = d[c0:c0 + max_lanes]
         n = len(chunk)
@@ -914,6 +944,7 @@ def _main(argv=None):
     ap.add_argument("--design", type=float, nargs=4, default=BASELINE.tolist(), metavar=DESIGN_NAMES)
     ap.add_argument("--policy", metavar="CKPT", help="a ppo.py checkpoint (default: the pump gait)")
     ap.add_argument("--period", type=int, default=12, help="pump gait period in control steps")
+    ap.add_argument("--mode", default="sync", choices=("sync", "alternate"), help="pump gait mode")
     args = ap.parse_args(argv)
     if args.bench:
         bench(args.lanes, args.workers)
@@ -921,7 +952,7 @@ def _main(argv=None):
         check_design(args.design, what="--design")
         if not 0 <= args.level <= MAX_LEVEL:
             raise SystemExit(f"--level={args.level} must lie in [0, {MAX_LEVEL}]")
-        policy = PumpGait(args.period)
+        policy = PumpGait(args.period, args.mode)
         if args.policy:
             import ppo
             policy = ppo.load_policy(args.policy)

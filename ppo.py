@@ -293,8 +293,9 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
 
     `design_sampler(rng, n) -> (n, 4)` draws the designs of resetting lanes (uniform over a design space for
     the e2e baselines, a GES territory for a specialist). If `ckpt` exists the run resumes from it; else,
-    if `init_ckpt` is given, policy, optimiser, normaliser and curriculum levels are warm-started from it
-    (GES rounds); else the policy starts fresh. Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and
+    if `init_ckpt` is given, policy, optimiser, normaliser, curriculum levels and the step count are
+    warm-started from it (GES rounds: total_steps = (round + 1) x steps per round); else the policy starts
+    fresh from `seed`. Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and
     at the end. Returns a summary of the last iteration.
     """
     if env.num_envs < 1 or total_steps < 1:
@@ -302,6 +303,8 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     torch.set_num_threads(1)   # the env workers own the cores; the update is small
     resume = ckpt if os.path.exists(ckpt) else init_ckpt
     state = load_checkpoint(resume) if resume else None
+    if resume != ckpt:
+        torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
     if state is not None:
         if (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
             raise ValueError(f"checkpoint {resume!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
@@ -318,12 +321,10 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
         lr = state["lr"]
         lv = state["levels"].numpy()
         levels = np.resize(lv, env.num_envs) if len(lv) else levels
-        if resume == ckpt:   # resuming this very run: continue its step count and random streams
-            steps = state["steps"]
+        steps = state["steps"]   # total_steps counts from the very first update, warm starts included
+        if resume == ckpt:       # resuming this very run: continue its random streams too
             rng.bit_generator.state = state["rng"]
             torch.set_rng_state(state["torch_rng"])
-    if resume != ckpt:
-        torch.manual_seed(seed)
     if steps >= total_steps:
         return {"steps": steps, "resumed": True}
     obs, info = env.reset(seed=int(rng.integers(2 ** 31)),
