@@ -47,7 +47,6 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import torch
 
 import ballu
 import ges
@@ -328,8 +327,6 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
         os.remove(log)
     cfg = ppo_config(preset)   # few lanes stay in-process: a spawned worker costs ~2 s of imports
     env = ballu.make_env(cfg.num_envs, max(1, min(workers, cfg.num_envs // 8)), ballu.BalluConfig(task=task))
-    if not have:
-        torch.manual_seed(seed)   # ppo.train builds a fresh network BEFORE it seeds torch: seed it here
     try:
         ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, log_csv=log, progress=Throttled(label))
     finally:
@@ -341,11 +338,9 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
 class TrainSpecialist:
     """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
 
-    Round r continues the specialist's own PPO run to (r + 1) * round_steps control steps: its round r-1
-    checkpoint is copied to ckpt_out and ppo.train resumes it (step count, optimiser, normaliser, curriculum
-    and random streams carry over). ppo.train's warm start (init_ckpt) would restart the step count at 0, so
-    a cumulative total_steps would train r+1 rounds' worth in round r. A repeated round starts from a clean
-    copy, so it is identical to the interrupted one."""
+    Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
+    and step count carry over) and trains to (r + 1) * round_steps control steps. A repeated (interrupted)
+    round first deletes its partial output, so it is identical to an uninterrupted one."""
     task: str
     space: ges.DesignSpace
     round_steps: int
@@ -356,15 +351,11 @@ class TrainSpecialist:
         for f in (ckpt_out, log):
             if os.path.exists(f):
                 os.remove(f)
-        if ckpt_in:
-            shutil.copyfile(ckpt_in, ckpt_out)
-        else:   # ppo.train builds a fresh network BEFORE it seeds torch, so the initial weights would depend on
-            torch.manual_seed(sampler.seed)   # what this process ran before (pool order, resumes): seed it here
         cfg = ppo_config(self.preset)
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
             ppo.train("mlp", env, FullDesigns(self.space, sampler), (round + 1) * self.round_steps, ckpt_out,
-                      cfg, seed=sampler.seed, log_csv=log, progress=None)
+                      cfg, init_ckpt=ckpt_in, seed=sampler.seed, log_csv=log, progress=None)
         finally:
             env.close()
 
