@@ -4,12 +4,13 @@ Read top to bottom:
   1. settings (`BalluConfig`) and the design vector (l_f, l_t, gcr, spcf)  -- paper Sec. III-B, Table I
   2. the robot: mass properties and a URDF generated from a design         -- ballu_facts.md "Robot"
   3. the knee law (spring + tendon PD) and the balloon forces              -- facts "Knee", "Buoyancy and drag"
-  4. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 5)    -- paper Sec. III-C, facts "Tasks"
+  4. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 4)   -- paper Sec. III-C, facts "Tasks"
   5. `BalluEnv`: N robots in one PyBullet world, one lane each, batched API
   6. `VecBallu`: W worker processes, each running a `BalluEnv`, same API
   7. the score J(policy, design) and two scripted controllers (stand, pump)
   8. command line: --bench, --strip
 
+Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward).
 Every choice says where it comes from: [paper], [facts] (the authors' code read as facts, see
 ../shared/ballu_facts.md), or [ours] where both are silent. QUIRKs of the authors' code exist as options,
 off by default.
@@ -33,13 +34,15 @@ import numpy as np
 import pybullet
 from pybullet_utils import bullet_client
 
+import ges   # design-space tables only (ges.py is plain numpy)
+
 # ----------------------------------------------------------------------------------------------------------
 # 1. Settings and the design vector
 # ----------------------------------------------------------------------------------------------------------
-DESIGN_NAMES = ("l_f", "l_t", "gcr", "spcf")
-TABLE_I_LOW = np.array([0.25, 0.25, 0.72, 0.001])    # [paper] Table I lower bounds
-TABLE_I_HIGH = np.array([0.55, 0.55, 0.90, 0.100])   # [paper] Table I upper bounds
-BASELINE = np.array([0.45, 0.45, 0.70, 0.002])       # [paper] Table I baseline (gcr outside the bounds)
+DESIGN_NAMES = ges.FULL_NAMES                         # ("l_f", "l_t", "gcr", "spcf")
+TABLE_I_LOW = np.array([ges.TABLE_I[n][0] for n in DESIGN_NAMES])    # [paper] Table I, defined in ges.py
+TABLE_I_HIGH = np.array([ges.TABLE_I[n][1] for n in DESIGN_NAMES])
+BASELINE = np.array([ges.BASELINE[n] for n in DESIGN_NAMES])         # gcr 0.70 lies outside the bounds
 # Physical validity (what the simulator can represent at all), wider than any design space. [ours]
 VALID_LOW = np.array([0.05, 0.05, 0.0, 0.0])
 VALID_HIGH = np.array([1.00, 1.00, 0.99, 1.0])
@@ -90,7 +93,7 @@ class BalluConfig:
     friction_ground: float = 0.5
     friction_obstacle: float = 0.5
     friction_ramp: float = 0.8
-    # rewards  [paper] eq. 5 weights; `reward_form` chooses the paper's terms or the authors' code's
+    # rewards  [paper] eq. 4 [eq:reward_obs] weights; `reward_form` chooses the paper's terms or the authors' code's
     w_nav: float = 5.0
     w_vel: float = 3.0
     w_jump: float = 1.0
@@ -293,7 +296,7 @@ def surface_height(task: str, x, level):
 
 
 def reward(task, cfg: BalluConfig, x, y_rel, vx, toe_clearance):
-    """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 5]; ramp: w1 r_nav + w2 r_vel.
+    """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 4, label eq:reward_obs]; ramp: w1 r_nav + w2 r_vel.
 
     reward_form="paper" (default): r_nav = -||g - s||^2 in the ground plane, r_vel = v_x.
     reward_form="code": r_nav = max(0, 1 - 0.33 ||g - s||), r_vel = v_x capped (0 above 0.8 m/s, e^v - 1
