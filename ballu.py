@@ -103,7 +103,10 @@ class BalluConfig:
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    lane_spacing: float = 4.0             # [ours] metres between blocks of LANES_PER_BLOCK lanes
+    lane_spacing: float = 12.0            # [ours] metres between blocks of LANES_PER_BLOCK lanes
+    # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
+    # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
+    terrain_width: float = 10.0
     solver_iterations: int = 10           # [ours] PyBullet contact solver iterations (measured stable)
 
     @property
@@ -422,8 +425,9 @@ class BalluEnv:
         self.plane = p.createMultiBody(0, plane)
         p.changeDynamics(self.plane, -1, lateralFriction=cfg.friction_ground)
         p.setCollisionFilterGroupMask(self.plane, -1, 1, 0x3FFFFFFF)
-        self._box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.5, 1.0, 0.5])
-        self._box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.5, 1.0, 0.5], rgbaColor=[0.6, 0.45, 0.3, 1])
+        half = [0.5, cfg.terrain_width / 2, 0.5]
+        self._box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half)
+        self._box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.45, 0.3, 1])
         self._ramp_shapes = {}
 
     def _lane_bit(self, i):
@@ -447,7 +451,8 @@ class BalluEnv:
                 p.resetBasePositionAndOrientation(self.terrain[i], [1.0, y, h - 0.5], [0, 0, 0, 1])
         else:
             if level not in self._ramp_shapes:   # a wedge rising from x=0.5 to 2.0, then a vertical drop
-                v = [[0.5, -1, 0], [2.0, -1, 0], [2.0, -1, h], [0.5, 1, 0], [2.0, 1, 0], [2.0, 1, h]]
+                w = cfg.terrain_width / 2
+                v = [[0.5, -w, 0], [2.0, -w, 0], [2.0, -w, h], [0.5, w, 0], [2.0, w, 0], [2.0, w, h]]
                 tri = [0, 1, 2, 3, 5, 4, 0, 3, 4, 0, 4, 1, 1, 4, 5, 1, 5, 2, 0, 2, 5, 0, 5, 3]
                 self._ramp_shapes[level] = (p.createCollisionShape(p.GEOM_MESH, vertices=v),
                                             p.createVisualShape(p.GEOM_MESH, vertices=v, indices=tri,

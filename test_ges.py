@@ -273,6 +273,18 @@ def test_ramp_terrain_and_toe_height():
     env.close()
 
 
+@pytest.mark.parametrize("task, level, top", [("obstacle", 30, 0.301), ("ramp", 40, 0.801)])
+def test_terrain_spans_the_lane(task, level, top):
+    """The terrain reaches 4 m to either side of the lane: no walking around it (a trained policy walked
+    around a 2 m wide ramp). Its top is where the level says."""
+    env = BalluEnv(1, replace(BalluConfig(), task=task))
+    env.reset(seed=0, options={"levels": level})
+    lo, hi = env.p.getAABB(env.terrain[0])
+    env.close()
+    assert lo[1] < -4.0 and hi[1] > 4.0
+    assert hi[2] == pytest.approx(top, abs=0.02)      # AABBs carry a small collision margin
+
+
 # ==========================================================================================================
 # ges.py: design spaces, initialisation, coverage, refit, router, the loop, resume, executors
 # ==========================================================================================================
