@@ -28,7 +28,7 @@ import multiprocessing as mp
 import os
 import tempfile
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pybullet

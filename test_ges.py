@@ -11,7 +11,6 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
-import pybullet
 import pytest
 from scipy import stats
 from scipy.stats import multivariate_normal
