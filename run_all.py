@@ -128,6 +128,7 @@ class Preset:
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
     ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
+    ges_warm_start: bool = False  # ours, quick only: specialists start from their cell's e2e MLP (paper: random init)
 
 
 # smoke: the whole pipeline with tiny budgets (the numbers mean nothing) to check that every stage, table and
@@ -138,30 +139,22 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                ges_probes=2, ges_probe_pool=50, ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2)
 
-# quick: every table and figure in about 2 h on this 2-core machine. Rates measured here with both cores busy
-# with other training (so an idle machine is faster): PPO ~1,900 control steps/s in one process (16 lanes;
-# the lead measures 3,000-4,000/s on both cores); one score J = 20 episodes x 400 steps = 8,000 steps costs
-# ~2.9 core-s when designs are scored in batches of 16 lanes and ~4.7 s for a single lane (a TPE trial).
-# Work, in core-seconds:
-#   PPO: 10 policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 150k                           =  1.5 M steps
-#        GES specialists: 4 main runs (3+3+6+6) + Table III (3 runs x 3) + K-sens (1+2+4+5+6) = 45,
-#        x 3 rounds x 50k                                                                         =  6.75 M steps
-#        per-design BO: 20 trials x 150k                                                          =  3.0 M steps
-#        11.25 M steps / 1,900 per core-s                                                         ~  5,900 core-s
-#   GES probes: 45 specialists x 3 rounds x F = 6 probes = 810 J x ~3.5 core-s (batches of 6)     ~  2,850 core-s
-#   test designs: (16 Table II + 3 Table III + 5 K-sens) sets x 32 designs = 768 J x 2.9 core-s   ~  2,250 core-s
-#   TPE: (12 searches (3 methods x 4 task/space) + 1 per-design BO) x 20 trials x 4.7 s            ~  1,200 core-s
-#   figures (strips, toe heights, plots)                                                         ~    100 core-s
-#   total ~ 12,300 core-s / 2 cores ~ 1 h 45 min; a GES round of K = 3 or 5 specialists leaves one of the 2
-#   pool workers idle part of the time (~ +15 min), so ~ 2 h.
-# Scaling for the lead: ppo_steps +50k (with ges_round_steps = ppo_steps / ges_max_rounds) adds
-# (10 + 45 + 20) x 50k / 3,800 steps/s ~ 16 min; n_test +16 ~ 10 min; tpe_trials (= cost_trials) +10 ~ 25 min
-# (the per-design BO trials train a policy each); ges_probes +6 ~ 25 min.
-QUICK = Preset("quick", ppo_steps=150_000, ges_round_steps=50_000, ppo_envs=16, ppo_rollout=64,
-               score_episodes=20, n_test=32, tpe_trials=20, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=3,
-               ges_target_coverage=0.95, ges_probes=6, ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000,
+# quick: every table and figure in about 2 h on this 2-core machine, with budgets set by what PPO needs here.
+# PPO on BALLU needs ~300k-800k control steps before its curriculum moves and 2-4 M to reach the J of the
+# README (measured: ppo.py --train). 2 h at ~3,600 control steps/s (one policy per core) is ~25 M steps in
+# total, training and scoring together, so:
+#   - 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 800k      =  8.0 M steps  (~40 min)
+#   - GES specialists start from their cell's e2e MLP (ges_warm_start; ours: with random init the ~45
+#     specialists of Table II, III and Fig. 7 would get < 300k steps each, before PPO learns anything) and
+#     specialise for 2 rounds x 60k: 45 x 120k                                         =  5.4 M steps  (~25 min)
+#   - scores: 24 test designs x (16 Table II + 8 Table III / Fig. 7 sets) + 2 x 45 x 4 probes + 12 TPE
+#     searches x 12 trials + 1 per-design BO trial (800k + J), extrapolated to 12        ~ 40 min
+# Measured: see README (the preset's wall time per stage is in REPORT.md).
+QUICK = Preset("quick", ppo_steps=800_000, ges_round_steps=60_000, ppo_envs=32, ppo_rollout=64,
+               score_episodes=20, n_test=24, tpe_trials=12, tpe_startup=6, K_d2=3, K_d3=6, ges_max_rounds=2,
+               ges_target_coverage=0.95, ges_probes=4, ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000,
                ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
-               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=20)
+               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True)
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
 # PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For big
@@ -345,6 +338,7 @@ class TrainSpecialist:
     space: ges.DesignSpace
     round_steps: int
     preset: Preset
+    warm_ckpt: str = ""   # Preset.ges_warm_start: round 0 starts from this policy (the cell's e2e MLP)
 
     def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
         log = ckpt_out + ".csv"
@@ -352,10 +346,12 @@ class TrainSpecialist:
             if os.path.exists(f):
                 os.remove(f)
         cfg = ppo_config(self.preset)
+        base = ppo.load_checkpoint(self.warm_ckpt)["steps"] if self.warm_ckpt else 0
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
-            ppo.train("mlp", env, FullDesigns(self.space, sampler), (round + 1) * self.round_steps, ckpt_out,
-                      cfg, init_ckpt=ckpt_in, seed=sampler.seed, log_csv=log, progress=None)
+            ppo.train("mlp", env, FullDesigns(self.space, sampler), base + (round + 1) * self.round_steps,
+                      ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed, log_csv=log,
+                      progress=None)
         finally:
             env.close()
 
@@ -403,7 +399,7 @@ class RoutedPolicy:
 def score_policy(policy, designs_full, task, preset: Preset, workers: int, label: str) -> np.ndarray:
     """J on a batch of full designs. Few lanes stay in this process (spawning workers costs more than it
     saves); results do not depend on the worker count (lane ids are global)."""
-    w = max(1, min(workers, len(designs_full) // 16))
+    w = max(1, min(workers, len(designs_full) // 8))
     return ballu.score(policy, designs_full, task, episodes=preset.score_episodes, workers=w,
                        progress=Throttled(label))
 
@@ -463,19 +459,31 @@ def baseline_jobs(run: Run) -> list:
     return jobs
 
 
+def timed_train(*args) -> tuple:
+    """train_policy in a pool worker; returns (checkpoint, wall seconds of this policy alone)."""
+    t0 = time.time()
+    return train_policy(*args), time.time() - t0
+
+
 def stage_baselines(run: Run) -> dict:
-    """Train every non-GES policy with the same per-policy budget (ppo_steps), one after another, each using
-    all workers."""
+    """Train every non-GES policy with the same per-policy budget (ppo_steps). With several workers, one policy
+    per worker, each stepping its lanes in its own process (faster than all workers on one policy: no
+    inter-process hop per control step); results do not depend on this (lane ids are global)."""
     jobs = baseline_jobs(run)
     prog, out = Progress("policies", len(jobs), every=0), {}
-    for i, (name, kind, task, sampler) in enumerate(jobs):
-        t0 = time.time()
-        ckpt = train_policy(policy_dir(run, name), kind, task, sampler, run.preset.ppo_steps, run.preset,
-                            derive_seed(run.seed, "ppo", name), run.workers, name)
-        out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
-                     "seconds": time.time() - t0}
-        kill_hook(f"baselines:{name}")
-        prog(i + 1, name)
+    ex = run.pool()
+    try:
+        futures = [ex.submit(timed_train, policy_dir(run, name), kind, task, sampler, run.preset.ppo_steps,
+                             run.preset, derive_seed(run.seed, "ppo", name), 1, name)
+                   for name, kind, task, sampler in jobs]
+        for i, ((name, *_), fut) in enumerate(zip(jobs, futures)):
+            ckpt, seconds = fut.result()
+            out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
+                         "seconds": seconds}
+            kill_hook(f"baselines:{name}")
+            prog(i + 1, name)
+    finally:
+        ex.shutdown(wait=True, cancel_futures=True)
     return out
 
 
@@ -511,10 +519,12 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
-    res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p),
+    warm = policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt" if p.ges_warm_start else ""
+    res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm),
                       ScoreSpecialist(task, space, p.score_episodes), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
-    return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "rounds": res.rounds,
+    return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
+            "rounds": res.rounds,
             "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
             "mu": res.mu.tolist(), "sigma": res.sigma.tolist(), "names": list(space.names)}
 
@@ -731,10 +741,14 @@ def stage_cost(run: Run) -> dict:
                          callback=after, verbose=False)
     bo_measured = float(sum(tr.seconds or 0.0 for tr in study.trials))
     bo_total = bo_measured / len(study.trials) * p.tpe_trials
-    ges_total = ges_summary["stage1_seconds"] + router["seconds"]
+    # with ges_warm_start the e2e MLP the specialists start from is part of GES's cost
+    warm_s = (read_json(run.path("stages", "baselines.json"))["result"][f"mlp-{t}-{s}"]["seconds"]
+              if p.ges_warm_start else 0.0)
+    ges_total = warm_s + ges_summary["stage1_seconds"] + router["seconds"]
     return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
             "extrapolated": len(study.trials) < p.tpe_trials, "bo_measured_s": bo_measured, "bo_s": bo_total,
-            "ges_stage1_s": ges_summary["stage1_seconds"], "ges_tpe_s": router["seconds"], "ges_s": ges_total,
+            "ges_warm_start_s": warm_s, "ges_stage1_s": ges_summary["stage1_seconds"],
+            "ges_tpe_s": router["seconds"], "ges_s": ges_total,
             "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
             "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"]}
 
@@ -1014,6 +1028,8 @@ def report(run: Run, manifest: dict) -> str:
          f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps per "
          f"update, initial mean action {p.ppo_init_action_mean}); GES {p.ges_round_steps:,} steps per "
          f"specialist per round, <= {p.ges_max_rounds} rounds, "
+         + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
+            if p.ges_warm_start else "") +
          f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
          f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE trials "
          f"({p.tpe_startup} random first); episodes per score J: {p.score_episodes} (paper: 20); "
@@ -1086,8 +1102,9 @@ def report(run: Run, manifest: dict) -> str:
               f"wall time){ex}", "",
               "| | ours | paper |", "|---|---|---|",
               f"| per-design BO wall time | {c['bo_s']:.0f} s | {PAPER_COST['bo_h']:.0f} h |",
-              f"| GES co-design wall time (stage 1 + TPE with router) | {c['ges_s']:.0f} s "
-              f"({c['ges_stage1_s']:.0f} + {c['ges_tpe_s']:.0f}) | {PAPER_COST['ges_h']:.0f} h |",
+              f"| GES co-design wall time (warm-start e2e MLP + stage 1 + TPE with router) | {c['ges_s']:.0f} s "
+              f"({c.get('ges_warm_start_s', 0):.0f} + {c['ges_stage1_s']:.0f} + {c['ges_tpe_s']:.0f}) "
+              f"| {PAPER_COST['ges_h']:.0f} h (no warm start) |",
               f"| reduction of wall time | {c['reduction_pct']:.0f} % | {PAPER_COST['reduction_pct']:.0f} % |",
               f"| best J found: per-design BO / GES | {c['bo_peak']:.1f} / {c['ges_peak']:.1f} | - |", ""]
     if R["figures"]:
