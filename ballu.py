@@ -772,6 +772,28 @@ class VecBallu:
         outs = self._all("step", self._split(a))
         return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
 
+    # Pipelined stepping (used by ppo.train): one worker steps its lanes while the caller computes the
+    # actions of another worker's lanes, so workers do not sit idle during inference.
+    @property
+    def parts(self) -> list:
+        """Lane indices of each worker, in order."""
+        return self.splits
+
+    def step_part_async(self, k: int, actions):
+        """Send actions for worker k's lanes (shape (len(parts[k]), ACT_DIM)); collect with step_part_wait(k)."""
+        a = np.asarray(actions, dtype=float)
+        if a.shape != (len(self.splits[k]), ACT_DIM) or not np.isfinite(a).all():
+            raise ValueError(f"actions for part {k} must be finite with shape ({len(self.splits[k])}, {ACT_DIM}),"
+                             f" got {a.shape}")
+        try:
+            self.conns[k].send(("step", a))
+        except (BrokenPipeError, OSError):
+            pass   # step_part_wait reports the dead worker
+
+    def step_part_wait(self, k: int) -> tuple:
+        """(obs, reward, terminated, truncated, info) of worker k's lanes after step_part_async(k, ...)."""
+        return self._recv(k)
+
     def close(self):
         for conn in self.conns:
             try:

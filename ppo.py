@@ -281,6 +281,81 @@ def policy_from(state) -> tuple[nn.Module, RunningNorm]:
     return policy, norm
 
 
+class Synchronous:
+    """One part, the whole env, stepped in one call (an in-process env)."""
+
+    def __init__(self, env):
+        self.env, self.parts, self._out = env, [np.arange(env.num_envs)], None
+
+    def send(self, k, actions):
+        self._out = self.env.step(actions)
+
+    def recv(self, k):
+        return self._out
+
+
+class Pipelined:
+    """One part per worker process of a multi-process env (ballu.VecBallu): while worker k steps its lanes,
+    the trainer computes the actions of the other parts, so the workers are not idle during inference."""
+
+    def __init__(self, env):
+        self.env, self.parts = env, env.parts
+
+    def send(self, k, actions):
+        self.env.step_part_async(k, actions)
+
+    def recv(self, k):
+        return self.env.step_part_wait(k)
+
+
+def rollout(policy, norm, stepper, obs, T: int, cfg: PPOConfig):
+    """T steps on every lane: returns the buffers (T, N, ...), the last observations and info, and the returns of
+    finished episodes. Parts are handled in turn: act on part k, send it, move on; when part k's step comes back,
+    store it and act on it again. Time-limit ends are bootstrapped with V(final observation).
+
+    The split into parts changes nothing but float rounding (batched matmuls of other sizes): each step's
+    action noise is drawn for all lanes at once, and an observation is normalised with the statistics of all
+    earlier steps. (Contact physics amplifies rounding, so runs with other worker counts drift apart.)"""
+    N, A = len(obs), policy.log_std.shape[0]
+    buf = {k: np.zeros((T, N) + s, dtype=np.float32) for k, s in
+           (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()),
+            ("done", ()), ("val", ()), ("logp", ()))}
+    std, obs, infos, returns = policy.log_std.exp().detach(), obs.copy(), [None] * len(stepper.parts), []
+    eps = None
+
+    def act(t, k):
+        nonlocal eps
+        ids = stepper.parts[k]
+        if k == 0:
+            eps = torch.randn(N, A)   # step t's noise, all lanes
+        o = torch.from_numpy(norm(obs[ids]))
+        with torch.no_grad():
+            mu = policy.mean(o)
+            a = mu + std * eps[ids]
+            buf["val"][t, ids] = policy.value(o).numpy()
+            buf["logp"][t, ids] = torch.distributions.Normal(mu, std).log_prob(a).sum(-1).numpy()
+        buf["obs"][t, ids], buf["act"][t, ids], buf["mu"][t, ids] = o.numpy(), a.numpy(), mu.numpy()
+        stepper.send(k, a.numpy())
+
+    for k in range(len(stepper.parts)):
+        act(0, k)
+    for t in range(T):
+        for k, ids in enumerate(stepper.parts):
+            o, rew, term, trunc, info = stepper.recv(k)
+            rew = rew.astype(np.float32).copy()
+            if trunc.any():   # time-limit end: bootstrap with V(final observation)
+                with torch.no_grad():
+                    rew[trunc] += cfg.gamma * policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
+            done = term | trunc
+            returns.extend(info["episode_return"][done].tolist())
+            buf["rew"][t, ids], buf["done"][t, ids], obs[ids], infos[k] = rew, done, o, info
+            if t + 1 < T:
+                act(t + 1, k)
+        norm.update(obs)   # after acting: step t + 1 was normalised with the statistics up to step t
+    info = {key: np.concatenate([np.asarray(i[key]) for i in infos]) for key in infos[0]}
+    return buf, obs, info, returns
+
+
 def _set_lr(opt, lr):
     for g in opt.param_groups:
         g["lr"] = lr
@@ -330,6 +405,8 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     obs, info = env.reset(seed=int(rng.integers(2 ** 31)),
                           options={"design_sampler": design_sampler, "levels": levels})
     T, N = cfg.num_steps, env.num_envs
+    stepper = Pipelined(env) if len(getattr(env, "parts", ())) > 1 else Synchronous(env)
+    norm.update(obs)
     log = open(log_csv, "a", newline="") if log_csv else None
     writer = csv.writer(log) if log else None
     if log and log.tell() == 0:
@@ -338,30 +415,9 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     t_start, it, ep_returns = time.time(), 0, []
     while steps < total_steps:
         t0 = time.time()
-        buf = {k: np.zeros((T, N) + s, dtype=np.float32) for k, s in
-               (("obs", (env.obs_dim,)), ("act", (env.act_dim,)), ("mu", (env.act_dim,)), ("rew", ()),
-                ("done", ()), ("val", ()), ("logp", ()))}
+        buf, obs, info, done_returns = rollout(policy, norm, stepper, obs, T, cfg)
+        ep_returns.extend(done_returns)
         std = policy.log_std.exp().detach()
-        for t in range(T):
-            norm.update(obs)
-            o = torch.from_numpy(norm(obs))
-            with torch.no_grad():
-                mu = policy.mean(o)
-                act = mu + std * torch.randn(mu.shape)
-                val = policy.value(o)
-                logp = torch.distributions.Normal(mu, std).log_prob(act).sum(-1)
-            obs, rew, term, trunc, info = env.step(act.numpy())
-            rew = rew.astype(np.float32).copy()
-            if trunc.any():   # time-limit end: bootstrap with V(final observation)
-                with torch.no_grad():
-                    v_final = policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
-                rew[trunc] += cfg.gamma * v_final
-            done = term | trunc
-            if done.any():
-                ep_returns.extend(info["episode_return"][done].tolist())
-            for k, v in (("obs", o.numpy()), ("act", act.numpy()), ("mu", mu.numpy()), ("rew", rew),
-                         ("done", done), ("val", val.numpy()), ("logp", logp.numpy())):
-                buf[k][t] = v
         with torch.no_grad():
             last_v = policy.value(torch.from_numpy(norm(obs))).numpy()
         adv, ret = gae(buf["rew"], buf["val"], buf["done"], last_v, cfg.gamma, cfg.lam)
