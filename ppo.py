@@ -552,7 +552,7 @@ def _main(argv=None):
             print(f"J = {s.round(2).tolist()} (mean {s.mean():.2f})")
 
 
-def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 10):
+def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
     """Env-only control steps/s (fixed random policy) vs end-to-end PPO training, same env and layout."""
     import tempfile
     import ballu
