@@ -591,11 +591,7 @@ class BalluEnv:
     def step(self, actions):
         if not self._ready:
             raise RuntimeError("call reset() before step()")
-        a = np.asarray(actions, dtype=float)
-        if a.shape != (self.num_envs, ACT_DIM):
-            raise ValueError(f"actions must have shape ({self.num_envs}, {ACT_DIM}), got {a.shape}")
-        if not np.isfinite(a).all():
-            raise ValueError("actions contain non-finite values (NaN or inf)")
+        a = check_actions(actions, self.num_envs)
         self._servo_goal = servo_target(a).tolist()
         self.last_action[:] = a
         for _ in range(self.cfg.decimation):
@@ -764,11 +760,7 @@ class VecBallu:
         return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
 
     def step(self, actions):
-        a = np.asarray(actions, dtype=float)
-        if a.shape != (self.num_envs, ACT_DIM):
-            raise ValueError(f"actions must have shape ({self.num_envs}, {ACT_DIM}), got {a.shape}")
-        if not np.isfinite(a).all():
-            raise ValueError("actions contain non-finite values (NaN or inf)")
+        a = check_actions(actions, self.num_envs)
         outs = self._all("step", self._split(a))
         return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
 
@@ -781,10 +773,7 @@ class VecBallu:
 
     def step_part_async(self, k: int, actions):
         """Send actions for worker k's lanes (shape (len(parts[k]), ACT_DIM)); collect with step_part_wait(k)."""
-        a = np.asarray(actions, dtype=float)
-        if a.shape != (len(self.splits[k]), ACT_DIM) or not np.isfinite(a).all():
-            raise ValueError(f"actions for part {k} must be finite with shape ({len(self.splits[k])}, {ACT_DIM}),"
-                             f" got {a.shape}")
+        a = check_actions(actions, len(self.splits[k]), f"actions for part {k}")
         try:
             self.conns[k].send(("step", a))
         except (BrokenPipeError, OSError):
@@ -809,6 +798,16 @@ class VecBallu:
     def __del__(self):
         if getattr(self, "procs", None):
             self.close()
+
+
+def check_actions(actions, n: int, what: str = "actions") -> np.ndarray:
+    """Actions as a float (n, ACT_DIM) array, or a clear error (wrong shape, NaN or inf)."""
+    a = np.asarray(actions, dtype=float)
+    if a.shape != (n, ACT_DIM):
+        raise ValueError(f"{what} must have shape ({n}, {ACT_DIM}), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{what} contain non-finite values (NaN or inf)")
+    return a
 
 
 def _merge(infos):
