@@ -320,7 +320,9 @@ def rollout(policy, norm, stepper, obs, T: int, cfg: PPOConfig):
     buf = {k: np.zeros((T, N) + s, dtype=np.float32) for k, s in
            (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()),
             ("done", ()), ("val", ()), ("logp", ()))}
-    std, obs, infos, returns = policy.log_std.exp().detach(), obs.copy(), [None] * len(stepper.parts), []
+    log_std = policy.log_std.detach()
+    std, obs, infos, returns = log_std.exp(), obs.copy(), [None] * len(stepper.parts), []
+    logp_0 = float(-log_std.sum() - 0.5 * A * math.log(2 * math.pi))   # log N(a; mu, std) = logp_0 - |eps|^2 / 2
     eps = None
 
     def act(t, k):
@@ -329,11 +331,11 @@ def rollout(policy, norm, stepper, obs, T: int, cfg: PPOConfig):
         if k == 0:
             eps = torch.randn(N, A)   # step t's noise, all lanes
         o = torch.from_numpy(norm(obs[ids]))
-        with torch.no_grad():
+        with torch.inference_mode():
             mu = policy.mean(o)
             a = mu + std * eps[ids]
             buf["val"][t, ids] = policy.value(o).numpy()
-            buf["logp"][t, ids] = torch.distributions.Normal(mu, std).log_prob(a).sum(-1).numpy()
+        buf["logp"][t, ids] = logp_0 - 0.5 * (eps[ids].numpy() ** 2).sum(-1)   # (a - mu) / std = eps
         buf["obs"][t, ids], buf["act"][t, ids], buf["mu"][t, ids] = o.numpy(), a.numpy(), mu.numpy()
         stepper.send(k, a.numpy())
 
@@ -387,7 +389,7 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
         policy, norm = policy_from(state)
     else:
         policy, norm = make_policy(kind, env.obs_dim, env.act_dim, cfg), RunningNorm(env.obs_dim, cfg.obs_clip)
-    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
     rng = np.random.default_rng([seed, 1])
     lr, steps = cfg.lr, 0
     levels = np.full(env.num_envs, start_level)
@@ -553,26 +555,48 @@ def _main(argv=None):
 
 
 def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
-    """Env-only control steps/s (fixed random policy) vs end-to-end PPO training, same env and layout."""
+    """Env-only control steps/s (fixed random policy) vs end-to-end PPO training, same env layout.
+
+    This VM's speed drifts by +-20 % within minutes, so the two are measured in alternation: after every PPO
+    iteration (rollout + GAE + update + checkpoint, timed between iterations) a second, identical env steps
+    the same number of control steps with random actions, stepped part by part like the trainer's rollout
+    (so the difference is the policy and the update alone). The ratio is the median over these pairs."""
     import tempfile
     import ballu
-    env = ballu.make_env(cfg.num_envs, workers, bcfg)
     sampler = ballu.FixedDesign(ballu.BASELINE)
-    env.reset(seed=0, options={"design_sampler": sampler, "levels": 0})
-    rng = np.random.default_rng(0)
-    n = cfg.num_steps * iters
-    t0 = time.time()
-    for _ in range(n):
-        env.step(rng.normal(0, 0.5, (cfg.num_envs, 2)))
-    env_rate = n * cfg.num_envs / (time.time() - t0)
-    with tempfile.TemporaryDirectory() as d:
+    env, ref = ballu.make_env(cfg.num_envs, workers, bcfg), ballu.make_env(cfg.num_envs, workers, bcfg)
+    ref.reset(seed=0, options={"design_sampler": sampler, "levels": 0})
+    stepper = Pipelined(ref) if len(getattr(ref, "parts", ())) > 1 else Synchronous(ref)
+    rng, n = np.random.default_rng(0), cfg.num_steps * cfg.num_envs
+    pairs, mark = [], [0.0]
+
+    def env_only_chunk(_msg):
+        train_s = time.time() - mark[0]
         t0 = time.time()
-        train("mlp", env, sampler, n * cfg.num_envs, os.path.join(d, "p.pt"), cfg, progress=None)
-        train_rate = n * cfg.num_envs / (time.time() - t0)
-    env.close()
-    print(f"env only (random policy): {env_rate:8.0f} control steps/s   ({cfg.num_envs} envs, {workers} workers)")
-    print(f"PPO training end to end : {train_rate:8.0f} control steps/s   ({100 * train_rate / env_rate:.0f} % of env only)")
-    return env_rate, train_rate
+        for t in range(cfg.num_steps + 1):   # stepped as the trainer steps: one part per worker, pipelined
+            for k, ids in enumerate(stepper.parts):
+                if t > 0:
+                    stepper.recv(k)
+                if t < cfg.num_steps:
+                    stepper.send(k, rng.normal(cfg.init_action_mean, cfg.init_std, (len(ids), ref.act_dim)))
+        pairs.append((n / (time.time() - t0), n / train_s))
+        mark[0] = time.time()
+
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            mark[0] = time.time()
+            train("mlp", env, sampler, n * (iters + 1), os.path.join(d, "p.pt"), cfg, progress=env_only_chunk)
+    finally:
+        env.close()
+        ref.close()
+    env_rate, train_rate = np.array(pairs[1:]).T   # the first iteration also holds the env reset
+    ratio = train_rate / env_rate
+    print(f"env only (random policy): {np.median(env_rate):8.0f} control steps/s   ({cfg.num_envs} envs, "
+          f"{workers} workers; median of {len(ratio)} chunks of {n} steps)")
+    print(f"PPO training end to end : {np.median(train_rate):8.0f} control steps/s   (median per-pair ratio "
+          f"{100 * np.median(ratio):.0f} % of env only; quartiles {100 * np.quantile(ratio, 0.25):.0f}-"
+          f"{100 * np.quantile(ratio, 0.75):.0f} %)")
+    return float(np.median(env_rate)), float(np.median(train_rate)), float(np.median(ratio))
 
 
 if __name__ == "__main__":

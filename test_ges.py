@@ -1209,6 +1209,10 @@ def test_pipelined_rollout_equals_synchronous():
     np.testing.assert_allclose(o1, o2, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(sorted(r1), sorted(r2), rtol=1e-5)
     assert len(r1) == 8 and b1["done"].sum() == 8
+    # the stored log-probability (computed from the noise) is that of the stored action under N(mu, std)
+    logp = torch.distributions.Normal(torch.from_numpy(b1["mu"]), pol.log_std.exp().detach()).log_prob(
+        torch.from_numpy(b1["act"])).sum(-1).numpy()
+    np.testing.assert_allclose(b1["logp"], logp, rtol=1e-4, atol=1e-4)
 
 
 def test_vecballu_step_by_part_equals_step():
