@@ -170,6 +170,13 @@ def distribution(policy, obs):
     return torch.distributions.Normal(mean, policy.log_std.exp().expand_as(mean))
 
 
+def gaussian_log_prob(act, mean, log_std):
+    """log N(act; mean, exp(log_std)) summed over action dims (what distribution(...).log_prob gives, without
+    building a Distribution: the update is dominated by small-op overhead)."""
+    z = (act - mean) * torch.exp(-log_std)
+    return (-0.5 * z * z - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+
+
 # ----------------------------------------------------------------------------------------------------------
 # 4. GAE and the PPO update
 # ----------------------------------------------------------------------------------------------------------
@@ -204,12 +211,12 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
         for s in range(0, mb * cfg.minibatches, mb):
             idx = perm[s:s + mb]
             obs, act = batch["obs"][idx], batch["act"][idx]
-            dist = distribution(policy, obs)
-            logp = dist.log_prob(act).sum(-1)
+            mu, log_std = policy.mean(obs), policy.log_std
+            logp = gaussian_log_prob(act, mu, log_std)
             with torch.no_grad():   # KL(old || new) of two diagonal Gaussians, for the schedule
-                old_mu, old_std = batch["mu"][idx], batch["std"][idx]
-                kl = (torch.log(dist.stddev / old_std) + (old_std ** 2 + (old_mu - dist.mean) ** 2)
-                      / (2 * dist.stddev ** 2) - 0.5).sum(-1).mean().item()
+                old_mu, old_std, std = batch["mu"][idx], batch["std"][idx], log_std.exp()
+                kl = (torch.log(std / old_std) + (old_std ** 2 + (old_mu - mu) ** 2)
+                      / (2 * std ** 2) - 0.5).sum(-1).mean().item()
             if kl > 2 * cfg.desired_kl:
                 lr = max(1e-5, lr / 1.5)
             elif 0 < kl < cfg.desired_kl / 2:
@@ -220,7 +227,7 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
             a = adv[idx]
             policy_loss = -torch.min(ratio * a, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * a).mean()
             value_loss = (policy.value(obs) - batch["ret"][idx]).pow(2).mean()
-            entropy = dist.entropy().sum(-1).mean()
+            entropy = (log_std + 0.5 * math.log(2 * math.pi * math.e)).sum()   # of N(mu, std): state independent
             loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy + policy.aux_loss(obs)
             opt.zero_grad()
             loss.backward()
@@ -364,7 +371,7 @@ def _set_lr(opt, lr):
 
 
 def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
-          init_ckpt: str | None = None, seed: int = 0, start_level: int = 0, log_csv: str | None = None,
+          init_ckpt: str | None = None, seed: int = 0, start_level: int | tuple = 0, log_csv: str | None = None,
           progress=print) -> dict:
     """Train a `kind` ('mlp' | 'moe') policy with PPO until `total_steps` control steps (cumulative).
 
@@ -392,7 +399,10 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
     rng = np.random.default_rng([seed, 1])
     lr, steps = cfg.lr, 0
-    levels = np.full(env.num_envs, start_level)
+    if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
+        levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
+    else:
+        levels = np.full(env.num_envs, start_level)
     if state is not None:
         opt.load_state_dict(state["optimizer"])
         lr = state["lr"]
@@ -513,6 +523,11 @@ def _ballu_sampler(name: str):
     return ballu.FixedDesign([float(v) for v in name.split(",")])
 
 
+def _levels_arg(text: str):
+    lo, _, hi = text.partition(":")
+    return (int(lo), int(hi)) if hi else int(lo)
+
+
 def _main(argv=None):
     import ballu
     ap = argparse.ArgumentParser(description="PPO on BALLU")
@@ -526,7 +541,7 @@ def _main(argv=None):
     ap.add_argument("--rollout", type=int, default=PPOConfig.num_steps)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--start-level", type=int, default=0)
+    ap.add_argument("--start-level", default="0", help="training curriculum start: a level, or LOW:HIGH per lane")
     ap.add_argument("--reward", default="paper", choices=("paper", "code"))
     ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
     ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
@@ -541,7 +556,7 @@ def _main(argv=None):
         env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
         ck = os.path.join(args.train, "policy.pt")
         try:
-            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=args.start_level,
+            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=_levels_arg(args.start_level),
                         log_csv=os.path.join(args.train, "log.csv"))
         finally:
             env.close()

@@ -1235,6 +1235,15 @@ def test_vecballu_step_by_part_equals_step():
             e.close()
 
 
+def test_gaussian_log_prob_and_entropy_match_torch_normal():
+    """The update's hand-written log N(a; mu, std) and entropy equal torch.distributions.Normal's."""
+    g = torch.Generator().manual_seed(0)
+    act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
+    ref = torch.distributions.Normal(mu, log_std.exp())
+    torch.testing.assert_close(ppo.gaussian_log_prob(act, mu, log_std), ref.log_prob(act).sum(-1))
+    torch.testing.assert_close((log_std + 0.5 * math.log(2 * math.pi * math.e)).sum(), ref.entropy().sum(-1)[0])
+
+
 def test_moe_gate_weights_sum_to_one_and_get_gradients():
     torch.manual_seed(0)
     cfg = ppo.PPOConfig()
