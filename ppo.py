@@ -379,8 +379,10 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     the e2e baselines, a GES territory for a specialist). If `ckpt` exists the run resumes from it; else,
     if `init_ckpt` is given, policy, optimiser, normaliser, curriculum levels and the step count are
     warm-started from it (GES rounds: total_steps = (round + 1) x steps per round); else the policy starts
-    fresh from `seed`. Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and
-    at the end. Returns a summary of the last iteration.
+    fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
+    [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
+    Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. Returns a summary of the last
+    iteration.
     """
     if env.num_envs < 1 or total_steps < 1:
         raise ValueError(f"total_steps={total_steps!r} must be >= 1")

@@ -1167,6 +1167,22 @@ def test_checkpoint_round_trip_and_clear_errors(tmp_path):
         ppo.train("mlp", PointMass(8), None, 64, str(tmp_path / "b.pt"), cfg, init_ckpt=ck, progress=None)
 
 
+def test_train_start_level_is_one_level_or_a_uniform_spread(tmp_path):
+    """start_level=(low, high) starts each lane at its own level in [low, high]; an int starts all at it."""
+    seen = []
+
+    class Recording(PointMass):
+        def reset(self, seed=None, options=None):
+            seen.append(np.asarray(options["levels"]).copy())
+            return super().reset(seed=seed, options=options)
+
+    cfg = ppo.PPOConfig(num_envs=64, num_steps=4)
+    ppo.train("mlp", Recording(64), None, 256, str(tmp_path / "a.pt"), cfg, start_level=(3, 9), progress=None)
+    ppo.train("mlp", Recording(64), None, 256, str(tmp_path / "b.pt"), cfg, start_level=5, progress=None)
+    assert seen[0].min() >= 3 and seen[0].max() <= 9 and len(set(seen[0].tolist())) >= 5
+    assert (seen[1] == 5).all()
+
+
 class SplitPointMass:
     """PointMass lanes in independent parts, like ballu.VecBallu's worker processes (pipelined rollouts)."""
 
