@@ -165,14 +165,9 @@ def make_policy(kind: str, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfi
     return POLICIES[kind](obs_dim, act_dim, cfg)
 
 
-def distribution(policy, obs):
-    mean = policy.mean(obs)
-    return torch.distributions.Normal(mean, policy.log_std.exp().expand_as(mean))
-
-
 def gaussian_log_prob(act, mean, log_std):
-    """log N(act; mean, exp(log_std)) summed over action dims (what distribution(...).log_prob gives, without
-    building a Distribution: the update is dominated by small-op overhead)."""
+    """log N(act; mean, exp(log_std)) summed over action dims: the policy's log-probability, written out
+    (a torch Distribution object costs more than this arithmetic in the small-batch update)."""
     z = (act - mean) * torch.exp(-log_std)
     return (-0.5 * z * z - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
 
@@ -365,11 +360,6 @@ def rollout(policy, norm, stepper, obs, T: int, cfg: PPOConfig):
     return buf, obs, info, returns
 
 
-def _set_lr(opt, lr):
-    for g in opt.param_groups:
-        g["lr"] = lr
-
-
 def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
           init_ckpt: str | None = None, seed: int = 0, start_level: int | tuple = 0, log_csv: str | None = None,
           progress=print) -> dict:
@@ -558,8 +548,8 @@ def _main(argv=None):
         env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
         ck = os.path.join(args.train, "policy.pt")
         try:
-            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=_levels_arg(args.start_level),
-                        log_csv=os.path.join(args.train, "log.csv"))
+            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed,
+                        start_level=_levels_arg(args.start_level), log_csv=os.path.join(args.train, "log.csv"))
         finally:
             env.close()
         plot_learning_curve(os.path.join(args.train, "log.csv"), os.path.join(args.train, "curve.png"),

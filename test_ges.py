@@ -1268,7 +1268,7 @@ def test_moe_gate_weights_sum_to_one_and_get_gradients():
     w = pol.gate_weights(obs[:, -4:])
     assert w.shape == (64, cfg.moe_experts)
     np.testing.assert_allclose(w.sum(1).detach().numpy(), 1.0, atol=1e-6)
-    loss = ppo.distribution(pol, obs).log_prob(torch.ones(64, 2)).sum() + pol.aux_loss(obs)
+    loss = ppo.gaussian_log_prob(torch.ones(64, 2), pol.mean(obs), pol.log_std).sum() + pol.aux_loss(obs)
     loss.backward()
     g = [p.grad for p in pol.gate.parameters()]
     assert all(x is not None for x in g) and sum(x.abs().sum() for x in g) > 0
