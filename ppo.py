@@ -310,6 +310,11 @@ class Pipelined:
         return self.env.step_part_wait(k)
 
 
+def make_stepper(env):
+    """Pipelined for a multi-process env (more than one part), else Synchronous."""
+    return Pipelined(env) if len(getattr(env, "parts", ())) > 1 else Synchronous(env)
+
+
 def rollout(policy, norm, stepper, obs, T: int, cfg: PPOConfig):
     """T steps on every lane: returns the buffers (T, N, ...), the last observations and info, and the returns of
     finished episodes. Parts are handled in turn: act on part k, send it, move on; when part k's step comes back,
@@ -409,7 +414,7 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     obs, info = env.reset(seed=int(rng.integers(2 ** 31)),
                           options={"design_sampler": design_sampler, "levels": levels})
     T, N = cfg.num_steps, env.num_envs
-    stepper = Pipelined(env) if len(getattr(env, "parts", ())) > 1 else Synchronous(env)
+    stepper = make_stepper(env)
     norm.update(obs)
     log = open(log_csv, "a", newline="") if log_csv else None
     writer = csv.writer(log) if log else None
@@ -573,7 +578,7 @@ def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
     sampler = ballu.FixedDesign(ballu.BASELINE)
     env, ref = ballu.make_env(cfg.num_envs, workers, bcfg), ballu.make_env(cfg.num_envs, workers, bcfg)
     ref.reset(seed=0, options={"design_sampler": sampler, "levels": 0})
-    stepper = Pipelined(ref) if len(getattr(ref, "parts", ())) > 1 else Synchronous(ref)
+    stepper = make_stepper(ref)
     rng, n = np.random.default_rng(0), cfg.num_steps * cfg.num_envs
     pairs, mark = [], [0.0]
 

@@ -524,8 +524,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
                       ScoreSpecialist(task, space, p.score_episodes), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
     return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
-            "rounds": res.rounds,
-            "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
+            "rounds": res.rounds, "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
             "mu": res.mu.tolist(), "sigma": res.sigma.tolist(), "names": list(space.names)}
 
 
