@@ -661,8 +661,8 @@ def _worker(conn, num_envs, cfg, lane_ids, curriculum):
                     out = None
                 elif cmd == "get":
                     out = getattr(env, arg)
-                elif cmd == "call":
-                    out = getattr(env, arg[0])(*arg[1])
+                elif cmd == "run":   # a picklable top-level function of this worker's env
+                    out = arg[0](env, *arg[1])
                 else:
                     raise ValueError(f"unknown command {cmd!r}")
                 conn.send(("ok", out))
@@ -764,24 +764,17 @@ class VecBallu:
         outs = self._all("step", self._split(a))
         return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
 
-    # Pipelined stepping (used by ppo.train): one worker steps its lanes while the caller computes the
-    # actions of another worker's lanes, so workers do not sit idle during inference.
     @property
     def parts(self) -> list:
         """Lane indices of each worker, in order."""
         return self.splits
 
-    def step_part_async(self, k: int, actions):
-        """Send actions for worker k's lanes (shape (len(parts[k]), ACT_DIM)); collect with step_part_wait(k)."""
-        a = check_actions(actions, len(self.splits[k]), f"actions for part {k}")
-        try:
-            self.conns[k].send(("step", a))
-        except (BrokenPipeError, OSError):
-            pass   # step_part_wait reports the dead worker
-
-    def step_part_wait(self, k: int) -> tuple:
-        """(obs, reward, terminated, truncated, info) of worker k's lanes after step_part_async(k, ...)."""
-        return self._recv(k)
+    def run(self, fn, args: list) -> list:
+        """fn(worker_env, *args[k]) in every worker k at once; their results, in order. `fn` must be a top-level
+        function (pickled by name). ppo.train rolls out so: each worker steps its lanes with its own policy copy."""
+        if len(args) != len(self.conns):
+            raise ValueError(f"run needs one argument tuple per worker ({len(self.conns)}), got {len(args)}")
+        return self._all("run", [(fn, tuple(a)) for a in args])
 
     def close(self):
         for conn in self.conns:

@@ -1183,23 +1183,19 @@ def test_train_start_level_is_one_level_or_a_uniform_spread(tmp_path):
     assert (seen[1] == 5).all()
 
 
-class SplitPointMass:
-    """PointMass lanes in independent parts, like ballu.VecBallu's worker processes (pipelined rollouts)."""
+class JoinedPointMass:
+    """PointMass lanes in independent parts (each with its global lane ids), stepped all at once here."""
 
     def __init__(self, sizes=(3, 5)):
-        self.subs = [PointMass(n) for n in sizes]
         self.parts = np.split(np.arange(sum(sizes)), np.cumsum(sizes)[:-1])
-        self.num_envs, self.obs_dim, self.act_dim, self.pending = sum(sizes), 2, 1, {}
+        self.subs = [PointMass(n) for n in sizes]
+        for sub, ids in zip(self.subs, self.parts):
+            sub.lane_ids = ids
+        self.num_envs, self.obs_dim, self.act_dim = sum(sizes), 2, 1
 
     def reset(self, seed=None, options=None):
         obs = [s.reset(seed=seed + i)[0] for i, s in enumerate(self.subs)]
         return np.concatenate(obs), {"levels": np.zeros(self.num_envs)}
-
-    def step_part_async(self, k, a):
-        self.pending[k] = self.subs[k].step(a)
-
-    def step_part_wait(self, k):
-        return self.pending.pop(k)
 
     def step(self, a):
         outs = [s.step(a[ids]) for s, ids in zip(self.subs, self.parts)]
@@ -1207,23 +1203,31 @@ class SplitPointMass:
         return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (info,)
 
 
-def test_pipelined_rollout_equals_synchronous():
-    """Acting on one part while another steps changes nothing: same buffers as stepping all lanes at once,
-    across episode ends (40-step episodes, 50-step rollout: time-limit bootstraps included)."""
+class SplitPointMass(JoinedPointMass):
+    """The same lanes rolled out part by part, like ballu.VecBallu's worker processes (`run`)."""
+
+    def run(self, fn, args):
+        return [fn(sub, *a) for sub, a in zip(self.subs, args)]
+
+
+def test_rollout_split_over_workers_equals_one_process():
+    """Each worker rolling out its own lanes with a policy copy gives the buffers of one in-process rollout
+    (the noise is per lane), across episode ends (40-step episodes, 50 steps: time-limit bootstraps included)."""
     cfg = ppo.PPOConfig(num_envs=8, num_steps=50)
     out = []
-    for stepper in (ppo.Synchronous, ppo.Pipelined):
-        env = SplitPointMass()
+    for env in (JoinedPointMass(), SplitPointMass()):
         obs, _ = env.reset(seed=5)
         torch.manual_seed(0)
         pol, norm = ppo.make_policy("mlp", 2, 1, cfg), ppo.RunningNorm(2)
         norm.update(obs)
-        out.append(ppo.rollout(pol, norm, stepper(env), obs, 50, cfg))
-    (b1, o1, _, r1), (b2, o2, _, r2) = out
+        out.append(ppo.rollout("mlp", pol, norm, env, obs, 50, cfg, noise_seed=3) + (norm,))
+    (b1, o1, _, r1, n1), (b2, o2, _, r2, n2) = out
     for k in b1:
         np.testing.assert_allclose(b1[k], b2[k], rtol=1e-5, atol=1e-6, err_msg=k)
     np.testing.assert_allclose(o1, o2, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(sorted(r1), sorted(r2), rtol=1e-5)
+    np.testing.assert_allclose(n1.mean, n2.mean, rtol=1e-6)   # the normaliser saw every new observation
+    assert n1.count == pytest.approx(1e-4 + 8 * 51)
     assert len(r1) == 8 and b1["done"].sum() == 8
     # the stored log-probability (computed from the noise) is that of the stored action under N(mu, std)
     logp = torch.distributions.Normal(torch.from_numpy(b1["mu"]), pol.log_std.exp().detach()).log_prob(
@@ -1231,24 +1235,26 @@ def test_pipelined_rollout_equals_synchronous():
     np.testing.assert_allclose(b1["logp"], logp, rtol=1e-4, atol=1e-4)
 
 
-def test_vecballu_step_by_part_equals_step():
-    """VecBallu's pipelined calls (one worker at a time) give what step() gives."""
-    cfg = BalluConfig(task="ramp")
-    envs = [ballu.VecBallu(4, 2, cfg) for _ in range(2)]
-    try:
-        obs = [e.reset(seed=2, options={"design_sampler": ballu.FixedDesign(BASELINE)})[0] for e in envs]
-        a = np.random.default_rng(0).uniform(0, 1, (6, 4, 2))
-        for t in range(6):
-            o1 = envs[0].step(a[t])[0]
-            for k, ids in enumerate(envs[1].parts):
-                envs[1].step_part_async(k, a[t, ids])
-            o2 = np.concatenate([envs[1].step_part_wait(k)[0] for k in range(len(envs[1].parts))])
-            np.testing.assert_array_equal(o1, o2)
-        with pytest.raises(ValueError, match="part 0"):
-            envs[1].step_part_async(0, np.zeros((3, 2)))
-    finally:
-        for e in envs:
-            e.close()
+def test_vecballu_rollout_in_workers_equals_one_process():
+    """ppo's rollout with a policy copy in each of 2 VecBallu workers gives what one process gives."""
+    cfg, bcfg = ppo.PPOConfig(num_envs=4, num_steps=6), BalluConfig(task="ramp")
+    torch.manual_seed(0)
+    pol = ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, cfg)
+    out = []
+    for env in (ballu.make_env(4, 1, bcfg), ballu.VecBallu(4, 2, bcfg)):
+        try:
+            obs, _ = env.reset(seed=2, options={"design_sampler": ballu.FixedDesign(BASELINE)})
+            norm = ppo.RunningNorm(ballu.OBS_DIM)
+            norm.update(obs)
+            out.append(ppo.rollout("mlp", pol, norm, env, obs, 6, cfg, noise_seed=1))
+            if hasattr(env, "run"):
+                with pytest.raises(ValueError, match="one argument tuple per worker"):
+                    env.run(ppo._random_steps, [(1, 0.5, 0.5, 0)])
+        finally:
+            env.close()
+    for k in out[0][0]:
+        np.testing.assert_allclose(out[0][0][k], out[1][0][k], rtol=1e-4, atol=1e-5, err_msg=k)
+    np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-4, atol=1e-5)
 
 
 def test_gaussian_log_prob_and_entropy_match_torch_normal():
