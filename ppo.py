@@ -304,7 +304,8 @@ def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: in
     log_std = policy.log_std.detach()
     std = log_std.exp().numpy()
     # log N(a; mu, std) with (a - mu) / std = eps: no distribution object in the hot loop
-    buf["logp"] = (-log_std.sum().item() - 0.5 * A * math.log(2 * math.pi) - 0.5 * (eps ** 2).sum(-1)).astype(np.float32)
+    logp_0 = -log_std.sum().item() - 0.5 * A * math.log(2 * math.pi)
+    buf["logp"] = (logp_0 - 0.5 * (eps ** 2).sum(-1)).astype(np.float32)
     returns = []
     for t in range(T):
         o = torch.from_numpy(norm(obs))
@@ -328,7 +329,7 @@ _WORKER_POLICY = {}   # one policy copy per worker process, built on first use, 
 
 def _rollout_in_worker(env, kind, dims, cfg, weights, norm_state, obs, T, noise_seed):
     """ppo.train's rollout as run inside a VecBallu worker (see VecBallu.run)."""
-    key = (kind, dims)
+    key = (kind, dims, repr(cfg))   # a worker may serve several train() calls
     if key not in _WORKER_POLICY:
         torch.set_num_threads(1)   # the two workers own the two cores
         _WORKER_POLICY[key] = make_policy(kind, *dims, cfg)
