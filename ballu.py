@@ -793,13 +793,13 @@ class VecBallu:
             self.close()
 
 
-def check_actions(actions, n: int, what: str = "actions") -> np.ndarray:
+def check_actions(actions, n: int) -> np.ndarray:
     """Actions as a float (n, ACT_DIM) array, or a clear error (wrong shape, NaN or inf)."""
     a = np.asarray(actions, dtype=float)
     if a.shape != (n, ACT_DIM):
-        raise ValueError(f"{what} must have shape ({n}, {ACT_DIM}), got {a.shape}")
+        raise ValueError(f"actions must have shape ({n}, {ACT_DIM}), got {a.shape}")
     if not np.isfinite(a).all():
-        raise ValueError(f"{what} contain non-finite values (NaN or inf)")
+        raise ValueError("actions contain non-finite values (NaN or inf)")
     return a
 
 

@@ -300,7 +300,7 @@ def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: in
                     for i in lane_ids], axis=1)                      # (T, n, A)
     buf = {k: np.zeros((T, n) + s, dtype=np.float32) for k, s in
            (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()), ("done", ()), ("val", ()))}
-    buf["new_obs"] = np.zeros((T,) + obs.shape)
+    buf["new_obs"] = np.zeros((T,) + obs.shape, dtype=obs.dtype)
     log_std = policy.log_std.detach()
     std = log_std.exp().numpy()
     # log N(a; mu, std) with (a - mu) / std = eps: no distribution object in the hot loop
@@ -340,6 +340,11 @@ def _rollout_in_worker(env, kind, dims, cfg, weights, norm_state, obs, T, noise_
     return rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
 
 
+def _concat(dicts, axis):
+    """Per key, the workers' arrays joined along the lane axis."""
+    return {k: np.concatenate([np.asarray(d[k]) for d in dicts], axis=axis) for k in dicts[0]}
+
+
 def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: int):
     """One rollout of T steps on all lanes, then the normaliser update with every observation that arrived.
 
@@ -351,11 +356,9 @@ def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: in
         weights = {k: v.detach().numpy().copy() for k, v in policy.state_dict().items()}
         args = [(kind, (env.obs_dim, env.act_dim), cfg, weights, (norm.mean, norm.var, norm.count), obs[ids], T,
                  noise_seed) for ids in env.parts]
-        outs = env.run(_rollout_in_worker, args)
-        buf = {k: np.concatenate([o[0][k] for o in outs], axis=1) for k in outs[0][0]}
-        obs = np.concatenate([o[1] for o in outs])
-        info = {k: np.concatenate([np.asarray(o[2][k]) for o in outs]) for k in outs[0][2]}
-        returns = [r for o in outs for r in o[3]]
+        bufs, obss, infos, rets = zip(*env.run(_rollout_in_worker, args))
+        buf, info = _concat(bufs, axis=1), _concat(infos, axis=0)   # buffers are (T, lanes, ...)
+        obs, returns = np.concatenate(obss), [r for ret in rets for r in ret]
     else:
         buf, obs, info, returns = rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
     norm.update(buf.pop("new_obs").reshape(-1, obs.shape[1]))
@@ -588,7 +591,10 @@ def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
         train_s = time.time() - mark[0]
         t0 = time.time()
         args = (cfg.num_steps, cfg.init_action_mean, cfg.init_std, len(pairs))
-        ref.run(_random_steps, [args] * len(ref.parts)) if hasattr(ref, "run") else _random_steps(ref, *args)
+        if hasattr(ref, "run"):
+            ref.run(_random_steps, [args] * len(ref.parts))
+        else:
+            _random_steps(ref, *args)
         pairs.append((n / (time.time() - t0), n / train_s))
         mark[0] = time.time()
 

@@ -467,8 +467,8 @@ def timed_train(*args) -> tuple:
 
 def stage_baselines(run: Run) -> dict:
     """Train every non-GES policy with the same per-policy budget (ppo_steps). With several workers, one policy
-    per worker, each stepping its lanes in its own process (faster than all workers on one policy: no
-    inter-process hop per control step). Each policy always steps in-process, so --workers does not change it."""
+    per worker, each stepping its lanes in its own process. Each policy always steps in-process, so --workers
+    does not change it."""
     jobs = baseline_jobs(run)
     prog, out = Progress("policies", len(jobs), every=0), {}
     ex = run.pool()
