@@ -541,8 +541,12 @@ def _main(argv=None):
     ap.add_argument("--reward", default="paper", choices=("paper", "code"))
     ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
     ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
+    ap.add_argument("--entropy", type=float, default=PPOConfig.entropy_coef, help="entropy bonus coefficient")
     args = ap.parse_args(argv)
-    cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean)
+    if not args.entropy >= 0:
+        ap.error(f"--entropy {args.entropy} must be >= 0")
+    cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean,
+                    entropy_coef=args.entropy)
     bcfg = ballu.BalluConfig(task=args.task, reward_form=args.reward)
     if args.bench:
         bench(cfg, bcfg, args.workers)
