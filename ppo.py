@@ -520,8 +520,17 @@ def _ballu_sampler(name: str):
 
 
 def _levels_arg(text: str):
-    lo, _, hi = text.partition(":")
-    return (int(lo), int(hi)) if hi else int(lo)
+    """--start-level: "L" or "LOW:HIGH", levels in 0..74 (ballu.MAX_LEVEL), LOW <= HIGH."""
+    import ballu
+    lo, sep, hi = text.partition(":")
+    try:
+        lv = (int(lo), int(hi)) if sep else (int(lo),)
+    except ValueError:
+        lv = ()
+    if not lv or min(lv) < 0 or max(lv) > ballu.MAX_LEVEL or lv[0] > lv[-1]:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a level or LOW:HIGH with 0 <= LOW <= HIGH <= "
+                                         f"{ballu.MAX_LEVEL}")
+    return lv if sep else lv[0]
 
 
 def _main(argv=None):
@@ -537,7 +546,8 @@ def _main(argv=None):
     ap.add_argument("--rollout", type=int, default=PPOConfig.num_steps)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--start-level", default="0", help="training curriculum start: a level, or LOW:HIGH per lane")
+    ap.add_argument("--start-level", type=_levels_arg, default=0,
+                    help="training curriculum start: a level, or LOW:HIGH per lane")
     ap.add_argument("--reward", default="paper", choices=("paper", "code"))
     ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
     ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
@@ -557,7 +567,7 @@ def _main(argv=None):
         ck = os.path.join(args.train, "policy.pt")
         try:
             out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed,
-                        start_level=_levels_arg(args.start_level), log_csv=os.path.join(args.train, "log.csv"))
+                        start_level=args.start_level, log_csv=os.path.join(args.train, "log.csv"))
         finally:
             env.close()
         plot_learning_curve(os.path.join(args.train, "log.csv"), os.path.join(args.train, "curve.png"),

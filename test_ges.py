@@ -1210,6 +1210,14 @@ class SplitPointMass(JoinedPointMass):
         return [fn(sub, *a) for sub, a in zip(self.subs, args)]
 
 
+@pytest.mark.parametrize("text", ["10:5", "abc", "80", "-1", "3:", ":4"])
+def test_start_level_argument_errors_name_the_range(text):
+    import argparse
+    with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
+        ppo._levels_arg(text)
+    assert ppo._levels_arg("3:9") == (3, 9) and ppo._levels_arg("7") == 7 and ppo._levels_arg("5:5") == (5, 5)
+
+
 def test_rollout_split_over_workers_equals_one_process():
     """Each worker rolling out its own lanes with a policy copy gives the buffers of one in-process rollout
     (the noise is per lane), across episode ends (40-step episodes, 50 steps: time-limit bootstraps included)."""
