@@ -364,6 +364,17 @@ def test_energy_audit_finds_no_energy_created():
     assert (np.abs(trace).max(axis=0) < 0.01 * mon.work).all(), np.abs(trace).max()   # ... and accounted for
 
 
+def test_capability_gaits_and_clearance_measure():
+    """The capability search's gait family holds the pump gaits exactly, and a standing robot's peak toe
+    clearance is ~0: the spawn drop (feet 0.2-0.3 m up at t = 0) does not count as a jump."""
+    acts = ballu.gait_actions(ballu.PUMP_GAITS, 60)
+    for k, (period, mode) in enumerate([(p, m) for m in ("sync", "alternate") for p in range(4, 41, 4)]):
+        pump = ballu.PumpGait(period, mode)
+        np.testing.assert_array_equal(acts[k], [pump(np.zeros((1, 1)))[0] for _ in range(60)])
+    out = ballu.play_open_loop(BASELINE, np.zeros((1, 40, 2)))
+    assert out["peak_clearance"][0] < 0.02 and not out["blowup"][0]
+
+
 # ==========================================================================================================
 # ges.py: design spaces, initialisation, coverage, refit, router, the loop, resume, executors
 # ==========================================================================================================
