@@ -9,7 +9,7 @@ Read top to bottom:
   6. `VecBallu`: W worker processes, each running a `BalluEnv`, same API
   7. the score J(policy, design) and two scripted controllers (stand, pump)
   8. the physics audit (blow-ups, joint limits, energy) and what the robot can do open loop
-  9. command line: --bench, --strip, --audit, --capability
+  9. command line: --bench, --strip (pump gait; a learned policy: ppo.py --strip), --audit, --capability
 
 Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward).
 Every choice says where it comes from: [paper], [facts] (the authors' code read as facts, see
@@ -1302,7 +1302,6 @@ def _main(argv=None):
     ap.add_argument("--task", default="obstacle", choices=TASKS)
     ap.add_argument("--level", type=int, default=30)
     ap.add_argument("--design", type=float, nargs=4, default=BASELINE.tolist(), metavar=DESIGN_NAMES)
-    ap.add_argument("--policy", metavar="CKPT", help="a ppo.py checkpoint (default: the pump gait)")
     ap.add_argument("--period", type=int, default=12, help="pump gait period in control steps")
     ap.add_argument("--mode", default="sync", choices=("sync", "alternate"), help="pump gait mode")
     args = ap.parse_args(argv)
@@ -1316,11 +1315,9 @@ def _main(argv=None):
         check_design(args.design, what="--design")
         if not 0 <= args.level <= MAX_LEVEL:
             raise SystemExit(f"--level={args.level} must lie in [0, {MAX_LEVEL}]")
-        policy = PumpGait(args.period, args.mode)
-        if args.policy:
-            import ppo
-            policy = ppo.load_policy(args.policy)
-        print("wrote", motion_strip(args.strip, policy, args.task, args.level, np.array(args.design)))
+        # a learned policy's strip: `python ppo.py --strip PNG --policy CKPT` (the simulator imports no learner)
+        print("wrote", motion_strip(args.strip, PumpGait(args.period, args.mode), args.task, args.level,
+                                    np.array(args.design)))
     if args.capability:
         print(capability_table(args.workers))
     if args.audit:

@@ -552,12 +552,22 @@ def _main(argv=None):
     ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
     ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
     ap.add_argument("--entropy", type=float, default=PPOConfig.entropy_coef, help="entropy bonus coefficient")
+    ap.add_argument("--strip", metavar="PNG", help="motion strip of one episode of --policy (ballu.motion_strip)")
+    ap.add_argument("--policy", metavar="CKPT", help="a checkpoint of this trainer, for --strip")
+    ap.add_argument("--level", type=int, default=30, help="terrain level of the --strip episode")
     args = ap.parse_args(argv)
     if not args.entropy >= 0:
         ap.error(f"--entropy {args.entropy} must be >= 0")
     cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean,
                     entropy_coef=args.entropy)
     bcfg = ballu.BalluConfig(task=args.task, reward_form=args.reward)
+    if args.strip:
+        if not args.policy:
+            ap.error("--strip needs --policy CKPT (the pump gait's strip: python ballu.py --strip PNG)")
+        if not 0 <= args.level <= ballu.MAX_LEVEL:
+            ap.error(f"--level {args.level} must lie in [0, {ballu.MAX_LEVEL}]")
+        design = _ballu_sampler(args.design)(np.random.default_rng(0), 1)[0]
+        print("wrote", ballu.motion_strip(args.strip, load_policy(args.policy), args.task, args.level, design))
     if args.bench:
         bench(cfg, bcfg, args.workers)
     if args.train:
