@@ -24,6 +24,9 @@ in info["final_obs"] (rows flagged by info["_final_obs"]).
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
+import copy
 import math
 import multiprocessing as mp
 import os
@@ -50,7 +53,7 @@ VALID_HIGH = np.array([1.00, 1.00, 0.99, 1.0])
 
 TASKS = ("obstacle", "ramp")
 MAX_LEVEL = 74                                        # [facts] levels 0..74
-LANES_PER_BLOCK = 29    # lanes sharing one spot: collision-filter bits 1..29 (bit 0 is the ground plane)
+MAX_LANES_PER_WORLD = 29   # lanes sharing one spot: collision-filter bits 1..29 (bit 0 is the ground plane)
 SCORE_START_LEVEL = {"obstacle": 28, "ramp": 40}      # [facts] the score J starts here
 
 
@@ -114,7 +117,12 @@ class BalluConfig:
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    lane_spacing: float = 12.0            # [ours] metres between blocks of LANES_PER_BLOCK lanes
+    # [ours] lanes per PyBullet world (client), all at the same spot. Speed only: a lane's trajectory is
+    # bit-identical in any world. Bullet's broadphase pairs every overlapping bounding box before the collision
+    # filter drops the pair, so stacked lanes cost ~B^2; each world costs a fixed overhead per step. 16 lanes
+    # on one core, robot-physics-steps/s inside stepSimulation (issue 15): 1 world of 16: 5.6k; 2 x 8: 7.9k;
+    # 4 x 4: 8.9k; 8 x 2: 7.8k; 16 x 1: 8.0k (`python ballu.py --bench` prints the sweep).
+    lanes_per_world: int = 4
     # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
     terrain_width: float = 10.0
@@ -416,16 +424,36 @@ OBS_NAMES = (["vx", "vy", "vz", "wx", "wy", "wz"] + [f"q_{j}" for j in ("neck", 
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
 
 
-class BalluEnv:
-    """N BALLU robots stepped together in one PyBullet world (DIRECT mode, no GUI).
+class _World:
+    """One PyBullet world (a DIRECT client): ground plane, shared terrain shapes, and up to
+    `cfg.lanes_per_world` lanes stacked at the same spot, each with its own collision-filter bit."""
 
-    Lanes lie on top of each other: the first LANES_PER_BLOCK lanes of a world all sit at y = 0, each with
-    its own terrain body and its own collision-filter bit, so a robot touches only the ground plane and its
-    own terrain. Putting every lane at the same coordinates matters: a lane offset sideways changes the
-    floating-point rounding of its contacts, and this chaotic system turns rounding into different
-    trajectories. With <= LANES_PER_BLOCK lanes per world a lane's trajectory is bit-identical wherever it
-    runs (further blocks sit lane_spacing apart in y). Each lane has its own design, curriculum level and
-    random generator (seeded from (seed, lane id)).
+    def __init__(self, cfg: BalluConfig):
+        with _quiet_stdout():   # PyBullet's C code prints "argv[0]=" on every connect
+            self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        p, self.cid, self.lanes = self.p, self.p._client, []
+        p.setGravity(0, 0, -cfg.gravity)
+        p.setPhysicsEngineParameter(fixedTimeStep=cfg.dt, numSubSteps=cfg.substeps if cfg.substeps > 1 else 0,
+                                    numSolverIterations=cfg.solver_iterations,
+                                    deterministicOverlappingPairs=1)
+        self.plane = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE))
+        p.changeDynamics(self.plane, -1, lateralFriction=cfg.friction_ground)
+        p.setCollisionFilterGroupMask(self.plane, -1, 1, 0x3FFFFFFF)
+        half = [0.5, cfg.terrain_width / 2, 0.5]
+        self.box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half)
+        self.box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.45, 0.3, 1])
+        self.ramp_shapes = {}
+
+
+class BalluEnv:
+    """N BALLU robots, one lane each, stepped together in PyBullet worlds (DIRECT mode, no GUI).
+
+    Lanes are grouped into worlds of `cfg.lanes_per_world`. Within a world all lanes lie on top of each other
+    at y = 0, each with its own terrain body and its own collision-filter bit, so a robot touches only the
+    ground plane and its own terrain. Every lane sits at the same coordinates because this chaotic system turns
+    floating-point rounding into different trajectories (a lane offset sideways rounds its contacts
+    differently): so a lane's trajectory is bit-identical in any world, alone or with any neighbours. Each lane
+    has its own design, curriculum level and random generator (seeded from (seed, lane id)).
 
     Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training), else a
     lane keeps its design (scoring). With `curriculum=True` each finished episode moves the lane's level.
@@ -435,17 +463,19 @@ class BalluEnv:
                  curriculum: bool = True, design_sampler=None):
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs={num_envs!r} must be an integer >= 1")
+        if not 1 <= cfg.lanes_per_world <= MAX_LANES_PER_WORLD:
+            raise ValueError(f"lanes_per_world={cfg.lanes_per_world!r} must lie in [1, {MAX_LANES_PER_WORLD}]")
         task_geometry(cfg.task)
         self.cfg, self.num_envs, self.curriculum = cfg, int(num_envs), curriculum
         self.design_sampler = design_sampler
         self.lane_ids = np.arange(num_envs) if lane_ids is None else np.asarray(lane_ids)
         self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
-        with _quiet_stdout():   # PyBullet's C code prints "argv[0]=" on every connect
-            self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
-        self.cid = self.p._client
+        n, B = self.num_envs, cfg.lanes_per_world
+        self.worlds = [_World(cfg) for _ in range(-(-n // B))]
+        self._world = [self.worlds[i // B] for i in range(n)]   # lane i -> its world
+        for i in range(n):
+            self._world[i].lanes.append(i)
         self._tmp = tempfile.TemporaryDirectory(prefix="ballu_urdf_")
-        self._build_world()
-        n = self.num_envs
         self.designs = np.tile(BASELINE, (n, 1))
         self.levels = np.zeros(n, dtype=np.int64)
         self.bodies = [-1] * n
@@ -458,68 +488,54 @@ class BalluEnv:
         self.monitor = None              # optional callable(env) after every physics step (the audit uses it)
         self._applied = [None] * n       # (knee torques, balloon force) of the last step, kept for the monitor
         self._mass, self._gcr, self._spcf = [0.0] * n, [0.0] * n, [0.0] * n
+        self._toe_len = np.zeros(n)      # knee to the foot's tip (m)
         self.last_action = np.zeros((n, 2))
         self.t = np.zeros(n, dtype=np.int64)
         self.ep_return = np.zeros(n)
         self.rngs = [np.random.default_rng(0) for _ in range(n)]
         self._ready = False
         self.sim_seconds = 0.0
-        self._lane_ys = np.array([self._lane_y(i) for i in range(n)])
 
     # -- world -------------------------------------------------------------------------------------------
-    def _build_world(self):
-        p, cfg = self.p, self.cfg
-        p.setGravity(0, 0, -cfg.gravity)
-        p.setPhysicsEngineParameter(fixedTimeStep=cfg.dt, numSubSteps=cfg.substeps if cfg.substeps > 1 else 0,
-                                    numSolverIterations=cfg.solver_iterations,
-                                    deterministicOverlappingPairs=1)
-        plane = p.createCollisionShape(p.GEOM_PLANE)
-        self.plane = p.createMultiBody(0, plane)
-        p.changeDynamics(self.plane, -1, lateralFriction=cfg.friction_ground)
-        p.setCollisionFilterGroupMask(self.plane, -1, 1, 0x3FFFFFFF)
-        half = [0.5, cfg.terrain_width / 2, 0.5]
-        self._box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half)
-        self._box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.45, 0.3, 1])
-        self._ramp_shapes = {}
+    def client(self, i):
+        """The PyBullet client (BulletClient) of lane i's world, for tools that inspect a robot."""
+        return self._world[i].p
 
     def _lane_bit(self, i):
-        return 1 << (1 + i % LANES_PER_BLOCK)
-
-    def _lane_y(self, i):
-        return float(i // LANES_PER_BLOCK) * self.cfg.lane_spacing
+        return 1 << (1 + i % self.cfg.lanes_per_world)
 
     def _set_terrain(self, i, level):
         """Place lane i's terrain for `level`: the obstacle box is moved; a ramp wedge is rebuilt."""
         if self._terrain_level[i] == level:
             return
-        p, cfg, y = self.p, self.cfg, self._lane_y(i)
+        cfg, world = self.cfg, self._world[i]
+        p = world.p
         h = float(level_height(cfg.task, level))
         if cfg.task == "obstacle":
             if self.terrain[i] < 0:
-                self.terrain[i] = p.createMultiBody(0, self._box_shape, self._box_visual, basePosition=[1.0, y, h - 0.5])
+                self.terrain[i] = p.createMultiBody(0, world.box_shape, world.box_visual, basePosition=[1.0, 0, h - 0.5])
                 p.changeDynamics(self.terrain[i], -1, lateralFriction=cfg.friction_obstacle)
                 p.setCollisionFilterGroupMask(self.terrain[i], -1, self._lane_bit(i), self._lane_bit(i))
             else:
-                p.resetBasePositionAndOrientation(self.terrain[i], [1.0, y, h - 0.5], [0, 0, 0, 1])
+                p.resetBasePositionAndOrientation(self.terrain[i], [1.0, 0, h - 0.5], [0, 0, 0, 1])
         else:
-            if level not in self._ramp_shapes:   # a wedge rising from x=0.5 to 2.0, then a vertical drop
+            if level not in world.ramp_shapes:   # a wedge rising from x=0.5 to 2.0, then a vertical drop
                 w = cfg.terrain_width / 2
                 v = [[0.5, -w, 0], [2.0, -w, 0], [2.0, -w, h], [0.5, w, 0], [2.0, w, 0], [2.0, w, h]]
                 tri = [0, 1, 2, 3, 5, 4, 0, 3, 4, 0, 4, 1, 1, 4, 5, 1, 5, 2, 0, 2, 5, 0, 5, 3]
-                self._ramp_shapes[level] = (p.createCollisionShape(p.GEOM_MESH, vertices=v),
+                world.ramp_shapes[level] = (p.createCollisionShape(p.GEOM_MESH, vertices=v),
                                             p.createVisualShape(p.GEOM_MESH, vertices=v, indices=tri,
                                                                 rgbaColor=[0.6, 0.45, 0.3, 1]))
             if self.terrain[i] >= 0:
                 p.removeBody(self.terrain[i])
-            self.terrain[i] = p.createMultiBody(0, *self._ramp_shapes[level], basePosition=[0, y, 0])
+            self.terrain[i] = p.createMultiBody(0, *world.ramp_shapes[level], basePosition=[0, 0, 0])
             p.changeDynamics(self.terrain[i], -1, lateralFriction=cfg.friction_ramp)
             p.setCollisionFilterGroupMask(self.terrain[i], -1, self._lane_bit(i), self._lane_bit(i))
         self._terrain_level[i] = level
 
     def _load_robot(self, i, design):
         """(Re)load lane i's robot when its design changed, else reset its pose; zero the servo state."""
-        p, cfg = self.p, self.cfg
-        y = self._lane_y(i)
+        cfg, p = self.cfg, self._world[i].p
         hip, knee = math.radians(cfg.start_hip_deg), math.radians(cfg.start_knee_deg)
         if self._body_design[i] is None or not np.array_equal(self._body_design[i], design):
             if self.bodies[i] >= 0:
@@ -527,7 +543,7 @@ class BalluEnv:
             path = os.path.join(self._tmp.name, f"lane{i}.urdf")
             with open(path, "w") as f:
                 f.write(robot_urdf(design, cfg))
-            b = p.loadURDF(path, [0, y, cfg.start_z], flags=p.URDF_USE_INERTIA_FROM_FILE)
+            b = p.loadURDF(path, [0, 0, cfg.start_z], flags=p.URDF_USE_INERTIA_FROM_FILE)
             for link in range(-1, 5):
                 p.changeDynamics(b, link, lateralFriction=1.0, linearDamping=0.0, angularDamping=0.0,
                                  jointDamping=0.0)
@@ -536,8 +552,9 @@ class BalluEnv:
             self.bodies[i], self._body_design[i] = b, design.copy()
         self._mass[i] = mass_properties(design, cfg)["total"]
         self._gcr[i], self._spcf[i] = float(design[2]), float(design[3])
+        self._toe_len[i] = design[1] + cfg.foot_offset + cfg.foot_radius
         b = self.bodies[i]
-        p.resetBasePositionAndOrientation(b, [0, y, cfg.start_z], [0, 0, 0, 1])
+        p.resetBasePositionAndOrientation(b, [0, 0, cfg.start_z], [0, 0, 0, 1])
         p.resetBaseVelocity(b, [0, 0, 0], [0, 0, 0])
         for j, q in ((NECK, 0.0), (HIP_L, hip), (HIP_R, hip), (KNEE_L, knee), (KNEE_R, knee)):
             p.resetJointState(b, j, q, 0.0)
@@ -587,54 +604,55 @@ class BalluEnv:
         write, on the module with the client id (the BulletClient wrapper costs more per call than the calls
         themselves); the per-robot arithmetic is on plain floats, which beats numpy dispatch at these sizes.
         """
-        cfg, cid = self.cfg, self.cid
+        cfg = self.cfg
         get_joints, get_link, apply, control = (pybullet.getJointStates, pybullet.getLinkState,
                                                 pybullet.applyExternalForce, pybullet.setJointMotorControlArray)
-        world, torque_mode = pybullet.WORLD_FRAME, pybullet.TORQUE_CONTROL
+        world_frame, torque_mode = pybullet.WORLD_FRAME, pybullet.TORQUE_CONTROL
         slew = cfg.servo_speed * cfg.dt if cfg.servo_slew else math.inf
         ratio = 100.0 / 180.0
-        for i, b in enumerate(self.bodies):
-            (q_l, qd_l, _, _), (q_r, qd_r, _, _) = get_joints(b, KNEES, physicsClientId=cid)
-            ls = get_link(b, BALLOON, 1, physicsClientId=cid)
-            servo, goal = self._servo[i], self._servo_goal[i]
-            servo[0] += min(slew, max(-slew, goal[0] - servo[0]))
-            servo[1] += min(slew, max(-slew, goal[1] - servo[1]))
-            k = self._spcf[i]
-            tau = [knee_torque(q_l, qd_l, servo[0] * ratio, k, cfg), knee_torque(q_r, qd_r, servo[1] * ratio, k, cfg)]
-            force = balloon_force(self._gcr[i], self._mass[i], ls[6], cfg)
-            apply(b, BALLOON, force, ls[0], world, physicsClientId=cid)
-            control(b, KNEES, torque_mode, forces=tau, physicsClientId=cid)
-            if cfg.quirk_buoyancy_torque:
-                pybullet.applyExternalTorque(b, BALLOON, quirk_torque(ls[1], force, cfg), world, physicsClientId=cid)
-            if self.monitor is not None:
-                self._applied[i] = (tau, force)
-        t0 = time.perf_counter()
-        pybullet.stepSimulation(physicsClientId=cid)
-        self.sim_seconds += time.perf_counter() - t0   # for the benchmark's raw-physics reference
+        for world in self.worlds:
+            cid = world.cid
+            for i in world.lanes:
+                b = self.bodies[i]
+                (q_l, qd_l, _, _), (q_r, qd_r, _, _) = get_joints(b, KNEES, physicsClientId=cid)
+                ls = get_link(b, BALLOON, 1, physicsClientId=cid)
+                servo, goal = self._servo[i], self._servo_goal[i]
+                servo[0] += min(slew, max(-slew, goal[0] - servo[0]))
+                servo[1] += min(slew, max(-slew, goal[1] - servo[1]))
+                k = self._spcf[i]
+                tau = [knee_torque(q_l, qd_l, servo[0] * ratio, k, cfg), knee_torque(q_r, qd_r, servo[1] * ratio, k, cfg)]
+                force = balloon_force(self._gcr[i], self._mass[i], ls[6], cfg)
+                apply(b, BALLOON, force, ls[0], world_frame, physicsClientId=cid)
+                control(b, KNEES, torque_mode, forces=tau, physicsClientId=cid)
+                if cfg.quirk_buoyancy_torque:
+                    pybullet.applyExternalTorque(b, BALLOON, quirk_torque(ls[1], force, cfg), world_frame,
+                                                 physicsClientId=cid)
+                if self.monitor is not None:
+                    self._applied[i] = (tau, force)
+            t0 = time.perf_counter()
+            pybullet.stepSimulation(physicsClientId=cid)
+            self.sim_seconds += time.perf_counter() - t0   # for the benchmark's physics-only reference
         if self.monitor is not None:
             self.monitor(self)
 
     def _read_state(self):
-        """Per-lane state for observation, reward and limits (a few PyBullet calls per robot)."""
-        p, n = self.p, self.num_envs
-        pos = np.zeros((n, 3))
-        vel = np.zeros((n, 6))
-        jq = np.zeros((n, 5))
-        jqd = np.zeros((n, 5))
-        toe = np.zeros((n, 2, 3))
-        L = self.designs[:, 1] + self.cfg.foot_offset + self.cfg.foot_radius  # knee to the foot's tip
-        orn = np.zeros((n, 4))
+        """Per-lane state for observation, reward and limits: four PyBullet calls per robot, gathered in Python
+        lists and turned into arrays once."""
+        base, vel, joints, legs = (pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
+                                   pybullet.getJointStates, pybullet.getLinkStates)
+        rows = []
         for i, b in enumerate(self.bodies):
-            pos[i], orn[i] = p.getBasePositionAndOrientation(b)
-            lin, ang = p.getBaseVelocity(b)
-            vel[i, :3], vel[i, 3:] = lin, ang
-            for k, s in enumerate(p.getJointStates(b, JOINTS)):
-                jq[i, k], jqd[i, k] = s[0], s[1]
-            for k, ls in enumerate(p.getLinkStates(b, TIBIAE)):
-                # foot tip = link frame origin (knee) + R (0, 0, -L): the third column of R times -L
-                x, y, z, w = ls[5]
-                toe[i, k] = np.array(ls[4]) - L[i] * np.array([2 * (x * z + w * y), 2 * (y * z - w * x),
-                                                               1 - 2 * (x * x + y * y)])
+            cid = self._world[i].cid
+            js = joints(b, JOINTS, physicsClientId=cid)
+            ll, lr = legs(b, TIBIAE, physicsClientId=cid)
+            rows.append((*base(b, physicsClientId=cid), *vel(b, physicsClientId=cid), [s[0] for s in js],
+                         [s[1] for s in js], (ll[4], lr[4]), (ll[5], lr[5])))
+        pos, orn, lin, ang, jq, jqd, knee, leg_orn = (np.array(c, dtype=float) for c in zip(*rows))
+        vel = np.concatenate([lin, ang], axis=1)
+        # foot tip = tibia frame origin (the knee) + R (0, 0, -L): the third column of R times -L
+        x, y, z, w = np.moveaxis(leg_orn, -1, 0)
+        axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+        toe = knee - self._toe_len[:, None, None] * axis
         return pos, vel, jq, jqd, toe, orn
 
     def _observe(self, state=None):
@@ -659,7 +677,7 @@ class BalluEnv:
         state = self._read_state()
         pos, vel, _, _, toe, _ = state
         cfg, task = self.cfg, self.cfg.task
-        y_rel = pos[:, 1] - self._lane_ys
+        y_rel = pos[:, 1]                       # every lane runs along y = 0
         clearance = toe[:, :, 2] - surface_height(task, toe[:, :, 0], self.levels[:, None])
         rew = reward(task, cfg, pos[:, 0], y_rel, vel[:, 0], clearance.min(axis=1))
         finite = np.isfinite(pos).all(1) & np.isfinite(vel).all(1) & np.isfinite(rew)
@@ -691,77 +709,65 @@ class BalluEnv:
         return obs, rew.astype(np.float32), terminated, truncated, info
 
     def close(self):
-        if getattr(self, "p", None) is not None:
-            self.p.disconnect()
-            self.p = None
+        for world in getattr(self, "worlds", []):
+            world.p.disconnect()
+        if getattr(self, "worlds", None):
+            self.worlds = []
             self._tmp.cleanup()
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. VecBallu: W worker processes behind the same interface
+# 6. Worker processes: a pool of long-lived workers, and VecBallu (W workers behind the BalluEnv interface)
 # ----------------------------------------------------------------------------------------------------------
-def _worker(conn, num_envs, cfg, lane_ids, curriculum):
-    """Serve one BalluEnv over a pipe; exceptions travel back as ('error', text)."""
+def _serve(conn):
+    """A worker's loop: run fn(state, *args) for each request; `state` is this worker's private dict, alive as
+    long as the worker. Exceptions travel back as ('error', traceback)."""
     import traceback
-    env = None
+    os.environ.setdefault("OMP_NUM_THREADS", "1")   # before torch loads: the workers share the cores, one each
+    state = {}
     try:
-        env = BalluEnv(num_envs, cfg, lane_ids=lane_ids, curriculum=curriculum)
         while True:
-            cmd, arg = conn.recv()
-            if cmd == "close":
+            msg = conn.recv()
+            if msg is None:
                 break
+            fn, args = msg
             try:
-                if cmd == "step":
-                    out = env.step(arg)
-                elif cmd == "reset":
-                    out = env.reset(**arg)
-                elif cmd == "set":
-                    setattr(env, arg[0], arg[1])
-                    out = None
-                elif cmd == "get":
-                    out = getattr(env, arg)
-                elif cmd == "run":   # a picklable top-level function of this worker's env
-                    out = arg[0](env, *arg[1])
-                else:
-                    raise ValueError(f"unknown command {cmd!r}")
-                conn.send(("ok", out))
+                conn.send(("ok", fn(state, *args)))
             except Exception:
                 conn.send(("error", traceback.format_exc()))
     except (EOFError, KeyboardInterrupt):
         pass
     finally:
-        if env is not None:
-            env.close()
+        for v in state.values():
+            if hasattr(v, "close"):
+                v.close()
 
 
-class VecBallu:
-    """`num_envs` lanes split over `workers` processes (one BalluEnv each); same interface as BalluEnv.
+class WorkerPool:
+    """`workers` long-lived spawned processes that run top-level functions fn(state, *args) side by side.
 
-    Lane ids are global, so a lane's random generator and trajectory do not depend on the worker count.
-    A worker that dies raises RuntimeError in the caller instead of hanging.
+    Start-up (a fresh interpreter importing numpy, PyBullet and often torch) costs seconds, so a pool is made
+    once and reused: VecBallu keeps one per env (each worker's `state` holds its BalluEnv), and `score` and
+    the open-loop tools share one per worker count (`shared_pool`). A worker that dies raises RuntimeError in
+    the caller instead of hanging.
     """
 
-    def __init__(self, num_envs: int, workers: int = 2, cfg: BalluConfig = BalluConfig(),
-                 curriculum: bool = True, design_sampler=None, timeout: float = 600.0):
+    def __init__(self, workers: int = 2, timeout: float = 600.0):
         if not isinstance(workers, (int, np.integer)) or workers < 1:
             raise ValueError(f"workers={workers!r} must be an integer >= 1")
-        if not isinstance(num_envs, (int, np.integer)) or num_envs < workers:
-            raise ValueError(f"num_envs={num_envs!r} must be an integer >= workers={workers}")
-        task_geometry(cfg.task)
-        self.num_envs, self.cfg, self.timeout = int(num_envs), cfg, timeout
-        self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
-        self.splits = np.array_split(np.arange(num_envs), workers)
         ctx = mp.get_context("spawn")   # no fork: the parent may hold torch threads
-        self.conns, self.procs = [], []
-        for ids in self.splits:
+        self.timeout, self.conns, self.procs = timeout, [], []
+        for _ in range(workers):
             a, b = ctx.Pipe()
-            proc = ctx.Process(target=_worker, args=(b, len(ids), cfg, ids, curriculum), daemon=True)
+            proc = ctx.Process(target=_serve, args=(b,), daemon=True)
             proc.start()
             b.close()
             self.conns.append(a)
             self.procs.append(proc)
-        if design_sampler is not None:
-            self.set_design_sampler(design_sampler)
+
+    @property
+    def workers(self) -> int:
+        return len(self.procs)
 
     def _recv(self, k):
         conn, proc = self.conns[k], self.procs[k]
@@ -780,65 +786,22 @@ class VecBallu:
             raise RuntimeError(f"BALLU worker {k} failed:\n{out}")
         return out
 
-    def _all(self, cmd, args):
-        for conn, arg in zip(self.conns, args):
+    def call(self, fn, args: list) -> list:
+        """fn(state_k, *args[k]) in workers k = 0..len(args)-1 at once; their results, in order. `fn` must be a
+        top-level function (pickled by name)."""
+        if len(args) > len(self.conns):
+            raise ValueError(f"call got {len(args)} argument tuples for {len(self.conns)} workers")
+        for conn, a in zip(self.conns, args):
             try:
-                conn.send((cmd, arg))
+                conn.send((fn, tuple(a)))
             except (BrokenPipeError, OSError):
                 pass   # _recv reports the dead worker
-        return [self._recv(k) for k in range(len(self.conns))]
-
-    def _split(self, x):
-        return [None if x is None else np.asarray(x)[ids] for ids in self.splits]
-
-    def set_design_sampler(self, sampler):
-        self._all("set", [("design_sampler", sampler)] * len(self.conns))
-
-    @property
-    def levels(self):
-        return np.concatenate(self._all("get", ["levels"] * len(self.conns)))
-
-    @property
-    def sim_seconds(self):
-        return np.array(self._all("get", ["sim_seconds"] * len(self.conns)))
-
-    @property
-    def designs(self):
-        return np.concatenate(self._all("get", ["designs"] * len(self.conns)))
-
-    def reset(self, seed=None, options=None):
-        options = dict(options or {})
-        per = []
-        for k, ids in enumerate(self.splits):
-            o = dict(options)
-            for key in ("designs", "levels"):
-                if o.get(key) is not None and np.ndim(o[key]) > (1 if key == "designs" else 0):
-                    o[key] = np.asarray(o[key])[ids]
-            per.append({"seed": seed, "options": o})
-        outs = self._all("reset", per)
-        return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
-
-    def step(self, actions):
-        a = check_actions(actions, self.num_envs)
-        outs = self._all("step", self._split(a))
-        return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
-
-    @property
-    def parts(self) -> list:
-        """Lane indices of each worker, in order."""
-        return self.splits
-
-    def run(self, fn, args: list) -> list:
-        """fn(worker_env, *args[k]) in every worker k at once; their results, in order. `fn` must be a top-level
-        function (pickled by name). ppo.train rolls out so: each worker steps its lanes with its own policy copy."""
-        if len(args) != len(self.conns):
-            raise ValueError(f"run needs one argument tuple per worker ({len(self.conns)}), got {len(args)}")
-        return self._all("run", [(fn, tuple(a)) for a in args])
+        return [self._recv(k) for k in range(len(args))]
 
     def close(self):
         for conn in self.conns:
             try:
-                conn.send(("close", None))
+                conn.send(None)
             except (BrokenPipeError, OSError):
                 pass
         for proc in self.procs:
@@ -850,6 +813,147 @@ class VecBallu:
     def __del__(self):
         if getattr(self, "procs", None):
             self.close()
+
+
+class InProcess:
+    """A one-worker WorkerPool that is this process: the same fn(state, *args) calls, with the arguments
+    copied as a worker would receive them (so a stateful policy, e.g. PumpGait's phase counter, is not advanced
+    in the caller's hands: workers=1 and workers=2 give the same result)."""
+
+    def __init__(self):
+        self.state, self.workers = {}, 1
+
+    def call(self, fn, args: list) -> list:
+        if len(args) > 1:
+            raise ValueError(f"call got {len(args)} argument tuples for 1 worker")
+        return [fn(self.state, *copy.deepcopy(a)) for a in args]
+
+
+def _plain(state, fn, args):
+    """Run a plain top-level function fn(*args) in a worker (its state unused)."""
+    return fn(*args)
+
+
+_SHARED_POOLS: dict = {}
+
+
+def shared_pool(workers: int) -> WorkerPool:
+    """The process-wide pool of `workers` workers for scoring and the open-loop tools, started on first use
+    and closed at exit; a dead one is replaced."""
+    pool = _SHARED_POOLS.get(workers)
+    if pool is None or not all(p.is_alive() for p in pool.procs):
+        if pool is not None:
+            pool.close()
+        pool = _SHARED_POOLS[workers] = WorkerPool(workers)
+        if len(_SHARED_POOLS) == 1:
+            atexit.register(close_shared_pools)
+    return pool
+
+
+def close_shared_pools():
+    for pool in _SHARED_POOLS.values():
+        pool.close()
+    _SHARED_POOLS.clear()
+
+
+# what a VecBallu worker does with the BalluEnv in its state
+def _env_open(state, num_envs, cfg, lane_ids, curriculum):
+    state["env"] = BalluEnv(num_envs, cfg, lane_ids=lane_ids, curriculum=curriculum)
+
+
+def _env_call(state, method, *args, **kw):
+    return getattr(state["env"], method)(*args, **kw)
+
+
+def _env_get(state, name):
+    return getattr(state["env"], name)
+
+
+def _env_set(state, name, value):
+    setattr(state["env"], name, value)
+
+
+def _env_run(state, fn, args):
+    return fn(state["env"], *args)
+
+
+class VecBallu:
+    """`num_envs` lanes split over `workers` processes (a WorkerPool whose workers hold one BalluEnv each);
+    the same interface as BalluEnv. Lane ids are global, so a lane's random generator and trajectory do not
+    depend on the worker count.
+    """
+
+    def __init__(self, num_envs: int, workers: int = 2, cfg: BalluConfig = BalluConfig(),
+                 curriculum: bool = True, design_sampler=None, timeout: float = 600.0):
+        if not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise ValueError(f"workers={workers!r} must be an integer >= 1")
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < workers:
+            raise ValueError(f"num_envs={num_envs!r} must be an integer >= workers={workers}")
+        task_geometry(cfg.task)
+        self.num_envs, self.cfg = int(num_envs), cfg
+        self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
+        self.splits = np.array_split(np.arange(num_envs), workers)
+        self.pool = WorkerPool(workers, timeout)
+        self.pool.call(_env_open, [(len(ids), cfg, ids, curriculum) for ids in self.splits])
+        if design_sampler is not None:
+            self.set_design_sampler(design_sampler)
+
+    @property
+    def procs(self):
+        return self.pool.procs
+
+    def _each(self, fn, *args):
+        return self.pool.call(fn, [args] * self.pool.workers)
+
+    def _split(self, x):
+        return [None if x is None else np.asarray(x)[ids] for ids in self.splits]
+
+    def set_design_sampler(self, sampler):
+        self._each(_env_set, "design_sampler", sampler)
+
+    @property
+    def levels(self):
+        return np.concatenate(self._each(_env_get, "levels"))
+
+    @property
+    def sim_seconds(self):
+        return np.array(self._each(_env_get, "sim_seconds"))
+
+    @property
+    def designs(self):
+        return np.concatenate(self._each(_env_get, "designs"))
+
+    def reset(self, seed=None, options=None):
+        options = dict(options or {})
+        per = []
+        for ids in self.splits:
+            o = dict(options)
+            for key in ("designs", "levels"):
+                if o.get(key) is not None and np.ndim(o[key]) > (1 if key == "designs" else 0):
+                    o[key] = np.asarray(o[key])[ids]
+            per.append(("reset", seed, o))
+        outs = self.pool.call(_env_call, per)
+        return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
+
+    def step(self, actions):
+        a = check_actions(actions, self.num_envs)
+        outs = self.pool.call(_env_call, [("step", part) for part in self._split(a)])
+        return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
+
+    @property
+    def parts(self) -> list:
+        """Lane indices of each worker, in order."""
+        return self.splits
+
+    def run(self, fn, args: list) -> list:
+        """fn(worker_env, *args[k]) in every worker k at once; their results, in order. `fn` must be a top-level
+        function (pickled by name). ppo.train rolls out so: each worker steps its lanes with its own policy copy."""
+        if len(args) != self.pool.workers:
+            raise ValueError(f"run needs one argument tuple per worker ({self.pool.workers}), got {len(args)}")
+        return self.pool.call(_env_run, [(fn, tuple(a)) for a in args])
+
+    def close(self):
+        self.pool.close()
 
 
 def check_actions(actions, n: int) -> np.ndarray:
@@ -897,6 +1001,13 @@ class PumpGait:
             raise ValueError(f"mode={mode!r} must be 'sync' or 'alternate'")
         self.amplitude, self.t = amplitude, 0
 
+    def for_lanes(self, ids):
+        """The same gait for a subset of the lanes (score hands each worker the part for its lanes)."""
+        pick = lambda x: x if np.ndim(x) == 0 else x[ids]   # noqa: E731  a scalar holds for every lane
+        part = PumpGait(pick(self.period), pick(np.where(self.alternate, "alternate", "sync")), self.amplitude)
+        part.t = self.t
+        return part
+
     def __call__(self, obs):
         on = (self.t % self.period) < self.period / 2
         self.t += 1
@@ -905,41 +1016,73 @@ class PumpGait:
         return np.broadcast_to(np.stack(np.broadcast_arrays(left, right), -1), (len(obs), ACT_DIM)).copy()
 
 
+def _score_open(state, policy, designs, lane_ids, cfg, start, episodes):
+    """Scoring, step 1 (in a worker, or in this process with a local `state`): a fresh env, one lane per design."""
+    n = len(designs)
+    env = BalluEnv(n, cfg, lane_ids=lane_ids, curriculum=True)
+    obs, _ = env.reset(seed=0, options={"designs": designs, "levels": np.full(n, start)})
+    state["score"] = {"env": env, "policy": policy, "obs": obs, "count": np.zeros(n, dtype=int),
+                      "final": np.full(n, -1), "x": np.full((n, episodes), np.nan)}
+
+
+def _score_play(state, episodes, until):
+    """Scoring, step 2: play until every lane has finished `until` of its `episodes` episodes; the level after
+    a lane's last episode is its result (-1 until then). Also returns each episode's final pelvis x."""
+    s = state["score"]
+    env, policy, count, final, x = s["env"], s["policy"], s["count"], s["final"], s["x"]
+    while (np.minimum(count, episodes) < until).any():
+        s["obs"], _, _, _, info = env.step(policy(s["obs"]))
+        done = info["_final_obs"] & (count < episodes)
+        x[done, count[done]] = info["final_x"][done]
+        count += done
+        hit = done & (count == episodes)
+        final[hit] = info["levels"][hit]
+    return final.copy(), x.copy()
+
+
+def _score_close(state):
+    s = state.pop("score", None)
+    if s is not None:
+        s["env"].close()
+
+
 def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_level: int | None = None,
-          workers: int = 1, cfg: BalluConfig | None = None, max_lanes: int | None = None, progress=None) -> np.ndarray:
+          workers: int = 1, cfg: BalluConfig | None = None, progress=None, final_x: bool = False):
     """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
 
-    The policy (any callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy) plays
-    `episodes` episodes per design; the level after the last one is the score, in cm (obstacle) or degrees
-    (ramp). [facts]
+    The policy (any picklable callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy;
+    one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` episodes per design; the level after the last one is the score, in cm (obstacle) or
+    degrees (ramp). [facts]  With workers > 1 the designs are split over the long-lived `shared_pool`, each
+    worker playing its lanes with its own copy of the policy (no round trip per step, no process start-up per
+    call). A lane's trajectory is the same in any world or worker, so J does not depend on the worker count
+    (for a learned policy evaluated row by row, as ppo.PolicyFn is). With `final_x`, also each episode's final
+    pelvis x (n, episodes) in m (NaN for a blown-up episode).
     """
     cfg = replace(cfg or BalluConfig(), task=task)
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
-    if episodes < 1:
-        raise ValueError(f"episodes={episodes!r} must be >= 1")
-    out = np.zeros(len(d))
-    max_lanes = max_lanes or LANES_PER_BLOCK * workers   # <= one block per world: lane-independent scores
-    for c0 in range(0, len(d), max_lanes):
-        chunk = d[c0:c0 + max_lanes]
-        n = len(chunk)
-        env = make_env(n, min(workers, n), cfg, curriculum=True)
-        try:
-            obs, _ = env.reset(seed=0, options={"designs": chunk, "levels": np.full(n, start)})
-            count = np.zeros(n, dtype=int)
-            final = np.full(n, -1)
-            while (count < episodes).any():
-                obs, _, _, _, info = env.step(policy(obs))
-                done = info["_final_obs"]
-                count += done
-                hit = done & (count == episodes)
-                final[hit] = info["levels"][hit]
-                if progress and done.any():
-                    progress(f"score {task}: {int(np.minimum(count, episodes).sum())}/{n * episodes} episodes")
-        finally:
-            env.close()
-        out[c0:c0 + n] = level_score(task, final)
-    return out
+    if not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes={episodes!r} must be an integer >= 1")
+    if not 0 <= start <= MAX_LEVEL:
+        raise ValueError(f"start_level={start!r} must lie in [0, {MAX_LEVEL}]")
+    parts = [ids for ids in np.array_split(np.arange(len(d)), min(workers, len(d))) if len(ids)]
+    part = getattr(policy, "for_lanes", None)   # a policy with per-lane settings hands each worker its part
+    args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, episodes)
+            for ids in parts]
+    call = (InProcess() if len(parts) == 1 else shared_pool(len(parts))).call
+    try:
+        call(_score_open, args)
+        for until in range(1, episodes + 1):
+            outs = call(_score_play, [(episodes, until)] * len(parts))
+            if progress:
+                progress(f"score {task}: {until * len(d)}/{episodes * len(d)} episodes")
+    except BaseException:
+        with contextlib.suppress(Exception):
+            call(_score_close, [()] * len(parts))
+        raise
+    call(_score_close, [()] * len(parts))
+    j = level_score(task, np.concatenate([o[0] for o in outs]))
+    return (j, np.concatenate([o[1] for o in outs])) if final_x else j
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -973,10 +1116,9 @@ class EnergyAudit:
     """
 
     def __init__(self, env):
-        p = env.p
         self.env, self.g = env, env.cfg.gravity
-        self.dyn = [[(p.getDynamicsInfo(b, k)[0], np.array(p.getDynamicsInfo(b, k)[2])) for k in range(-1, 5)]
-                    for b in env.bodies]
+        self.dyn = [[(env.client(i).getDynamicsInfo(b, k)[0], np.array(env.client(i).getDynamicsInfo(b, k)[2]))
+                     for k in range(-1, 5)] for i, b in enumerate(env.bodies)]
         n = env.num_envs
         self.alive = np.ones(n, bool)
         self.limit_excess, self.rise = np.zeros(n), np.zeros(n)
@@ -984,7 +1126,7 @@ class EnergyAudit:
         self.prev = [self._state(i) for i in range(n)]
 
     def _state(self, i):
-        p, b = self.env.p, self.env.bodies[i]
+        p, b = self.env.client(i), self.env.bodies[i]
         pos, orn = p.getBasePositionAndOrientation(b)
         lin, ang = p.getBaseVelocity(b)
         frames = [(pos, orn, lin, ang)] + [(s[0], s[1], s[6], s[7]) for s in p.getLinkStates(b, range(5), 1)]
@@ -1044,19 +1186,13 @@ def play_open_loop(designs, actions, task: str = "obstacle", level=0, cfg: Ballu
 
 
 def _play_chunks(designs, actions, task, level, cfg, audit=False, workers=2):
-    """play_open_loop over chunks of <= one block of lanes, spread over `workers` processes; results joined."""
-    from concurrent.futures import ProcessPoolExecutor
+    """play_open_loop with the lanes split over `workers` processes of the shared pool; results joined."""
     n = len(actions)
     designs = np.broadcast_to(check_design(designs), (n, 4))
     levels = np.broadcast_to(np.asarray(level), (n,))
-    size = min(LANES_PER_BLOCK, -(-n // max(1, workers)))
-    chunks = [slice(c, c + size) for c in range(0, n, size)]
-    args = [(designs[c], actions[c], task, levels[c], cfg, audit) for c in chunks]
-    if workers <= 1 or len(chunks) == 1:
-        outs = [play_open_loop(*a) for a in args]
-    else:
-        with ProcessPoolExecutor(min(workers, len(chunks)), mp_context=mp.get_context("spawn")) as pool:
-            outs = list(pool.map(play_open_loop, *zip(*args)))
+    parts = np.array_split(np.arange(n), max(1, min(workers, n)))
+    args = [(play_open_loop, (designs[ids], actions[ids], task, levels[ids], cfg, audit)) for ids in parts]
+    outs = (InProcess() if len(parts) == 1 else shared_pool(len(parts))).call(_plain, args)
     return {k: np.concatenate([o[k] for o in outs]) for k in outs[0]}
 
 
@@ -1234,7 +1370,7 @@ def motion_strip(path, policy=None, task="obstacle", level=30, design=BASELINE, 
     obs, _ = env.reset(seed=0, options={"designs": design, "levels": level})
     keep = set(np.linspace(0, cfg.episode_steps - 1, frames).astype(int).tolist())
     shots, xs = [], []
-    p, b = env.p, env.bodies[0]
+    p, b = env.client(0), env.bodies[0]
     g = task_geometry(task)
     for t in range(cfg.episode_steps):
         if t in keep:
@@ -1263,32 +1399,80 @@ def motion_strip(path, policy=None, task="obstacle", level=30, design=BASELINE, 
     return path
 
 
-def bench(lanes: int = 16, workers: int = 2, control_steps: int = 400):
-    """Robot-physics-steps/s of the env (1 lane, N lanes, W workers) next to its own bare physics.
+def _bench_steps(env, steps: int, seed: int):
+    """Step `env` (here or inside a worker) with uniform random actions; (time inside stepSimulation, wall)."""
+    rng = np.random.default_rng(seed)
+    sim0, t0 = env.sim_seconds, time.perf_counter()
+    for _ in range(steps):
+        env.step(rng.uniform(0, 1, (env.num_envs, ACT_DIM)))
+    return env.sim_seconds - sim0, time.perf_counter() - t0
 
-    The reference is measured in the same run and the same world: the time spent inside stepSimulation
-    alone (no per-step Python work), so ratio = env rate / raw rate is the share of time that is physics.
-    """
-    rng = np.random.default_rng(0)
-    rows = []
-    for n, w in ((1, 1), (lanes, 1), (lanes, workers)):
-        env = make_env(n, w)
+
+def _bench_env(lanes: int, workers: int, steps: int, cfg: BalluConfig):
+    """Robot-physics-steps/s (200 Hz) of `lanes` lanes per worker, each worker stepping its own lanes:
+    (physics only = steps / time inside stepSimulation, env with all per-step work = steps / wall)."""
+    n = lanes * workers
+    env = BalluEnv(n, cfg) if workers == 1 else VecBallu(n, workers, cfg)
+    try:
         env.reset(seed=0, options={"designs": BASELINE, "levels": 10})
-        sim0 = np.sum(env.sim_seconds)
-        t0 = time.perf_counter()
-        for _ in range(control_steps):
-            env.step(rng.uniform(0, 1, (n, 2)))
-        wall = time.perf_counter() - t0
-        sim = np.max(np.asarray(env.sim_seconds)) if w > 1 else env.sim_seconds - sim0
+        if workers == 1:
+            out = [_bench_steps(env, steps, 0)]
+        else:
+            out = env.run(_bench_steps, [(steps, k) for k in range(workers)])
+    finally:
         env.close()
-        steps = control_steps * n * BalluConfig().decimation
-        rows.append((f"{n} lane(s), {w} process(es)", steps / sim, steps / wall))
-    print(f"{'configuration':28s} {'raw stepSimulation':>19s} {'env, all per-step work':>23s} {'ratio':>6s}")
-    for name, raw, rate in rows:
-        print(f"{name:28s} {raw:16,.0f}/s {rate:20,.0f}/s {rate / raw:6.2f}")
-    print(f"{workers} workers vs 1 process, {lanes} lanes: {rows[2][2] / rows[1][2]:.2f}x   "
-          f"(robot-physics-steps per second at 200 Hz; raw = steps / time inside stepSimulation)")
-    return rows
+    sim, wall = np.max(np.array(out), axis=0)   # the slowest worker sets the pace
+    robot_steps = n * steps * cfg.decimation
+    return robot_steps / sim, robot_steps / wall
+
+
+def _bench_score(designs: int, workers: int, cfg: BalluConfig):
+    """Robot-physics-steps/s of `score` (pump gaits of 16 periods, 2 short episodes per design)."""
+    periods = np.resize(np.arange(4, 36, 2), designs)
+    t0 = time.perf_counter()
+    score(PumpGait(periods), np.tile(BASELINE, (designs, 1)), cfg.task, episodes=2, start_level=10,
+          workers=workers, cfg=cfg)
+    return designs * 2 * cfg.episode_steps * cfg.decimation / (time.perf_counter() - t0)
+
+
+def bench(lanes: int = 16, workers: int = 2, control_steps: int = 200, repeats: int = 2):
+    """Simulator throughput next to its own physics-only rate, measured in the same run (issue 15).
+
+    Physics only: the time inside stepSimulation alone while the same robots move under random actions. Env:
+    all per-step work (forces, torques, state reads, reward, observation). Rates are robot-physics-steps/s
+    at 200 Hz. Each configuration is measured `repeats` times in alternation (this machine drifts +-20 %
+    within minutes) and the mean is printed. Pool start-up is paid before the scoring rows (the pool is
+    long-lived, so that is how `run_all.py` sees it).
+    """
+    base = BalluConfig()
+    sweep = [b for b in (1, 2, 4, 8, 16) if b <= lanes]
+    rows = {}
+    for _ in range(repeats):
+        for b in sweep:
+            rows.setdefault(("layout", b), []).append(_bench_env(lanes, 1, control_steps, replace(base, lanes_per_world=b)))
+        rows.setdefault(("env", workers), []).append(_bench_env(lanes, workers, control_steps, base))
+    short = replace(base, episode_steps=100)
+    _bench_score(workers, workers, short)   # start the shared pool
+    for _ in range(repeats):
+        for w in (1, workers):
+            rows.setdefault(("score", w), []).append((_bench_score(lanes * workers, w, short),))
+    m = {k: np.mean(v, axis=0) for k, v in rows.items()}
+    print(f"layout sweep, {lanes} lanes on 1 core        physics only   env, all per-step work")
+    for b in sweep:
+        raw, env = m[("layout", b)]
+        tag = "   <- BalluConfig.lanes_per_world" if b == base.lanes_per_world else ""
+        print(f"  {lanes // b:2d} world(s) of {b:2d} lane(s)            {raw:10,.0f}/s {env:14,.0f}/s{tag}")
+    raw1, env1 = m[("layout", base.lanes_per_world)]
+    raw2, env2 = m[("env", workers)]
+    s1, s2 = m[("score", 1)][0], m[("score", workers)][0]
+    print(f"1 core, {lanes} lanes:               physics only {raw1:8,.0f}/s   env {env1:8,.0f}/s")
+    print(f"{workers} workers, {lanes} lanes each:     physics only {raw2:8,.0f}/s   env {env2:8,.0f}/s")
+    print(f"score, {lanes * workers} designs:          1 core {s1:8,.0f}/s   {workers} workers {s2:8,.0f}/s")
+    print(f"env/physics ratio {env1 / raw1:.2f}   (1 core, all per-step work / stepSimulation alone)")
+    print(f"{workers} workers vs 1 core {env2 / env1:.2f}x   (env: each worker steps its own lanes, as ppo.train)")
+    print(f"{workers} workers vs 1 core {s2 / s1:.2f}x   (score: each worker plays its designs)")
+    print(f"({repeats} alternating repeats each; robot-physics-steps per second at 200 Hz)")
+    return m
 
 
 def _main(argv=None):
@@ -1310,6 +1494,8 @@ def _main(argv=None):
     if args.workers < 1:
         ap.error(f"--workers {args.workers} must be >= 1")
     if args.bench:
+        if args.lanes < 1:
+            ap.error(f"--lanes {args.lanes} must be >= 1")
         bench(args.lanes, args.workers)
     if args.strip:
         check_design(args.design, what="--design")

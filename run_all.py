@@ -397,9 +397,9 @@ class RoutedPolicy:
 
 
 def score_policy(policy, designs_full, task, preset: Preset, workers: int, label: str) -> np.ndarray:
-    """J on a batch of full designs. Few lanes stay in this process (spawning workers costs more than it
-    saves); results do not depend on the worker count (lane ids are global)."""
-    w = max(1, min(workers, len(designs_full) // 8))
+    """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
+    count: a lane's trajectory is the same in any world or worker, and learned policies run row by row)."""
+    w = max(1, min(workers, len(designs_full)))
     return ballu.score(policy, designs_full, task, episodes=preset.score_episodes, workers=w,
                        progress=Throttled(label))
 

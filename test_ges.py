@@ -11,6 +11,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
+import pybullet
 import pytest
 from scipy import stats
 from scipy.stats import multivariate_normal
@@ -28,7 +29,7 @@ D_MID = np.array([0.45, 0.45, 0.81, 0.0505])     # centre of D2
 
 def robot_com(env, i=0):
     """Mass-weighted centre of mass of lane i's robot (base + every link's centre of mass) and its mass."""
-    p, b = env.p, env.bodies[i]
+    p, b = env.client(i), env.bodies[i]
     ms, xs = [p.getDynamicsInfo(b, -1)[0]], [np.array(p.getBasePositionAndOrientation(b)[0])]
     for link in range(5):
         ms.append(p.getDynamicsInfo(b, link)[0])
@@ -91,7 +92,7 @@ def settle(designs, action, seconds=4.0):
     a = np.full((len(designs), 2), action)
     for _ in range(int(seconds / env.cfg.control_dt)):
         env.step(a)
-    z = np.array([env.p.getBasePositionAndOrientation(b)[0][2] for b in env.bodies])
+    z = np.array([env.client(i).getBasePositionAndOrientation(b)[0][2] for i, b in enumerate(env.bodies)])
     env.close()
     return z
 
@@ -218,7 +219,7 @@ def test_episode_limits_and_info():
     assert obs.shape == (2, ballu.OBS_DIM) and np.isfinite(obs).all()
     assert list(info["levels"]) == [2, 2]                       # stood still: x < 0.5, one level down
     # A lane thrown past the height limit ends (terminated, flagged) while the other goes on.
-    env.p.resetBasePositionAndOrientation(env.bodies[1], [0, 4.0, 6.0], [0, 0, 0, 1])
+    env.client(1).resetBasePositionAndOrientation(env.bodies[1], [0, 4.0, 6.0], [0, 0, 0, 1])
     obs, r, term, trunc, info = env.step(np.zeros((2, 2)))
     assert list(term) == [False, True] and info["blowup"][1] and not trunc.any()
     assert np.isfinite(obs).all() and np.isfinite(r).all()
@@ -278,7 +279,7 @@ def test_terrain_spans_the_lane(task, level, top):
     around a 2 m wide ramp). Its top is where the level says."""
     env = BalluEnv(1, replace(BalluConfig(), task=task))
     env.reset(seed=0, options={"levels": level})
-    lo, hi = env.p.getAABB(env.terrain[0])
+    lo, hi = env.client(0).getAABB(env.terrain[0])
     env.close()
     assert lo[1] < -4.0 and hi[1] > 4.0
     assert hi[2] == pytest.approx(top, abs=0.02)      # AABBs carry a small collision margin
@@ -294,9 +295,9 @@ def test_base_frame_velocities_are_world_velocities_rotated_into_the_pelvis():
     np.testing.assert_allclose(ballu.to_base_frame(q, v), Rotation.from_quat(q).inv().apply(v), atol=1e-12)
     env = BalluEnv(1, replace(BalluConfig(), start_z=3.0))
     env.reset(seed=0)
-    orn = env.p.getQuaternionFromEuler([0.3, -0.6, 0.2])
-    env.p.resetBasePositionAndOrientation(env.bodies[0], [0, 0, 3.0], orn)
-    env.p.resetBaseVelocity(env.bodies[0], [0.7, 0.0, -0.2], [0.0, 1.5, 0.0])
+    orn = pybullet.getQuaternionFromEuler([0.3, -0.6, 0.2])
+    env.client(0).resetBasePositionAndOrientation(env.bodies[0], [0, 0, 3.0], orn)
+    env.client(0).resetBaseVelocity(env.bodies[0], [0.7, 0.0, -0.2], [0.0, 1.5, 0.0])
     obs = env._observe()
     env.close()
     R = Rotation.from_quat(orn)
@@ -320,10 +321,10 @@ def test_quirk_torque_rotates_with_the_balloon_and_rights_it():
         cfg = replace(BalluConfig(), quirk_buoyancy_torque=quirk, start_z=3.0, drag_coef=0.0)
         env = BalluEnv(1, cfg)
         env.reset(seed=0, options={"designs": [0.45, 0.45, 0.9, 0.01]})
-        env.p.resetJointState(env.bodies[0], ballu.NECK, 0.6, 0.0)   # balloon tilted 0.6 rad on its neck
+        env.client(0).resetJointState(env.bodies[0], ballu.NECK, 0.6, 0.0)   # balloon tilted 0.6 rad on its neck
         for _ in range(4):
             env.step(np.full((1, 2), 0.3))
-        swing.append(env.p.getJointState(env.bodies[0], ballu.NECK)[0])
+        swing.append(env.client(0).getJointState(env.bodies[0], ballu.NECK)[0])
         env.close()
     assert swing[1] < swing[0] - 0.02, swing                      # the quirk turned it back further
 
@@ -1354,6 +1355,28 @@ def test_vecballu_rollout_in_workers_equals_one_process():
     for k in out[0][0]:
         np.testing.assert_allclose(out[0][0][k], out[1][0][k], rtol=1e-4, atol=1e-5, err_msg=k)
     np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-4, atol=1e-5)
+
+
+def test_score_in_workers_equals_score_in_one_process():
+    """ballu.score in the shared worker pool (each worker plays its designs with its own policy copy) gives
+    exactly the scores of one process, for a per-lane scripted gait and a learned policy; the pool is reused."""
+    cfg = replace(BalluConfig(), episode_steps=100)
+    rng = np.random.default_rng(4)
+    designs = np.column_stack([rng.uniform(0.3, 0.5, (6, 2)), rng.uniform(0.75, 0.9, 6), rng.uniform(0.001, 0.1, 6)])
+    torch.manual_seed(3)
+    learned = ppo.PolicyFn(ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, ppo.PPOConfig()),
+                           ppo.RunningNorm(ballu.OBS_DIM))
+    pump = ballu.PumpGait([6, 8, 10, 12, 14, 16], ["sync", "alternate"] * 3)
+    for policy in (pump, learned):
+        one, x1 = ballu.score(policy, designs, "obstacle", episodes=2, cfg=cfg, workers=1, final_x=True)
+        two, x2 = ballu.score(policy, designs, "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
+        np.testing.assert_array_equal(one, two)
+        np.testing.assert_array_equal(x1, x2)                  # the same trajectories, to the last bit
+        assert np.unique(x1[:, 0]).size == len(x1)             # ... and they did differ between lanes
+        if policy is learned:   # row by row: a design's score does not depend on who shares its call
+            _, x3 = ballu.score(policy, designs[1:4], "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
+            np.testing.assert_array_equal(x1[1:4], x3)
+    assert ballu.shared_pool(2) is ballu.shared_pool(2)
 
 
 def test_gaussian_log_prob_and_entropy_match_torch_normal():
