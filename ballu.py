@@ -5,8 +5,8 @@ Read top to bottom:
   2. the robot: mass properties and a URDF generated from a design         -- ballu_facts.md "Robot"
   3. the knee law (spring + tendon PD) and the balloon forces              -- facts "Knee", "Buoyancy and drag"
   4. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 4)   -- paper Sec. III-C, facts "Tasks"
-  5. `BalluEnv`: N robots in one PyBullet world, one lane each, batched API
-  6. `VecBallu`: W worker processes, each running a `BalluEnv`, same API
+  5. `BalluEnv`: N robots, one lane each, in PyBullet worlds of a few lanes; batched API
+  6. worker processes: `WorkerPool` (long-lived), `VecBallu` (W workers, each a `BalluEnv`, same API)
   7. the score J(policy, design) and two scripted controllers (stand, pump)
   8. the physics audit (blow-ups, joint limits, energy) and what the robot can do open loop
   9. command line: --bench, --strip (pump gait; a learned policy: ppo.py --strip), --audit, --capability
@@ -120,8 +120,8 @@ class BalluConfig:
     # [ours] lanes per PyBullet world (client), all at the same spot. Speed only: a lane's trajectory is
     # bit-identical in any world. Bullet's broadphase pairs every overlapping bounding box before the collision
     # filter drops the pair, so stacked lanes cost ~B^2; each world costs a fixed overhead per step. 16 lanes
-    # on one core, robot-physics-steps/s inside stepSimulation (issue 15): 1 world of 16: 5.6k; 2 x 8: 7.9k;
-    # 4 x 4: 8.9k; 8 x 2: 7.8k; 16 x 1: 8.0k (`python ballu.py --bench` prints the sweep).
+    # on one core, robot-physics-steps/s inside stepSimulation (`python ballu.py --bench`, issue 15): 1 world of
+    # 16: 5.0k; 2 x 8: 7.0k; 4 x 4: 8.3k; 8 x 2: 9.0k; 16 x 1: 8.0k (2 and 4 are within the VM's noise).
     lanes_per_world: int = 4
     # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.

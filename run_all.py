@@ -372,7 +372,7 @@ class RoutedPolicy:
     """GES as one policy: each lane is played by the specialist whose Gaussian is densest at the lane's design
     (the density router, paper eq. 10). The design is read back from the observation (its last 4 entries),
     so ballu.score can score GES on a batch of designs exactly like any other policy: same lanes, same
-    call, one lane per design (a lane's trajectory depends on its lane index, so all methods must share them)."""
+    call, one lane per design."""
 
     def __init__(self, run_dir: str):
         res = ges.load_result(run_dir)

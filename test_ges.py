@@ -227,6 +227,12 @@ def test_episode_limits_and_info():
 
 
 def test_bad_input_raises_clear_errors():
+    with pytest.raises(ValueError, match=r"lanes_per_world=0 must lie in \[1, 29\]"):
+        BalluEnv(1, replace(BalluConfig(), lanes_per_world=0))
+    with pytest.raises(ValueError, match="episodes=0 must be an integer >= 1"):
+        ballu.score(ballu.stand, BASELINE, episodes=0)
+    with pytest.raises(ValueError, match=r"start_level=80 must lie in \[0, 74\]"):
+        ballu.score(ballu.stand, BASELINE, start_level=80)
     with pytest.raises(ValueError, match="gcr"):
         ballu.check_design([0.45, 0.45, 0.70, 0.002], ballu.TABLE_I_LOW, ballu.TABLE_I_HIGH)
     with pytest.raises(ValueError, match=r"l_f=2\.0 is outside"):
