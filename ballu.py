@@ -1,15 +1,18 @@
 """ballu.py -- a batched PyBullet simulator of BALLU for the GES co-design paper.
 
 Read top to bottom:
-  1. settings (`BalluConfig`) and the design vector (l_f, l_t, gcr, spcf)  -- paper Sec. III-B, Table I
-  2. the robot: mass properties and a URDF generated from a design         -- ballu_facts.md "Robot"
-  3. the knee law (spring + tendon PD) and the balloon forces              -- facts "Knee", "Buoyancy and drag"
-  4. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 4)   -- paper Sec. III-C, facts "Tasks"
-  5. `BalluEnv`: N robots, one lane each, in PyBullet worlds of a few lanes; batched API
-  6. worker processes: `WorkerPool` (long-lived), `VecBallu` (W workers, each a `BalluEnv`, same API)
-  7. the score J(policy, design) and two scripted controllers (stand, pump)
-  8. the physics audit (blow-ups, joint limits, energy) and what the robot can do open loop
-  9. command line: --bench, --strip (pump gait; a learned policy: ppo.py --strip), --audit, --capability
+  1. the design vector (l_f, l_t, gcr, spcf), Table I, D2/D3 and design samplers -- paper Sec. III-B, Table I
+  2. settings (`BalluConfig`)
+  3. the robot: mass properties and a URDF generated from a design         -- ballu_facts.md "Robot"
+  4. the knee law (spring + tendon PD) and the balloon forces              -- facts "Knee", "Buoyancy and drag"
+  5. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 4)   -- paper Sec. III-C, facts "Tasks"
+  6. `BalluEnv`: N robots, one lane each, in PyBullet worlds of a few lanes; batched API
+  7. worker processes: `WorkerPool` (long-lived), `VecBallu` (W workers, each a `BalluEnv`, same API)
+  8. the score J(policy, design) and two scripted controllers (stand, pump)
+  9. the physics audit (blow-ups, joint limits, energy) and what the robot can do open loop
+  10. command line: --bench, --strip (pump gait; a learned policy: ppo.py --strip), --audit, --capability
+
+This module imports no other module of the project: the learner (ppo.py) and the co-design (ges.py) sit on top.
 
 Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward).
 Every choice says where it comes from: [paper], [facts] (the authors' code read as facts, see
@@ -32,25 +35,214 @@ import multiprocessing as mp
 import os
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-import pybullet
-from pybullet_utils import bullet_client
 
-import ges   # design-space tables only (ges.py is plain numpy)
+
+@contextlib.contextmanager
+def quiet_stdout(fds=(1,)):
+    """Silence C-level output (file descriptors; 1 = stdout) in a with-block: PyBullet's C code prints
+    "argv[0]=" on stdout at every connect, and a build-time banner on stderr (2) at import. C's own buffers
+    are flushed before the descriptors come back. Python exceptions still propagate."""
+    import ctypes
+    import sys
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved, devnull = [os.dup(fd) for fd in fds], os.open(os.devnull, os.O_WRONLY)
+    for fd in fds:
+        os.dup2(devnull, fd)
+    os.close(devnull)
+    try:
+        yield
+    finally:
+        ctypes.CDLL(None).fflush(None)
+        for fd, keep in zip(fds, saved):
+            os.dup2(keep, fd)
+            os.close(keep)
+
+
+with quiet_stdout((1, 2)):   # no "pybullet build time" banner in every script and worker
+    import pybullet
+    from pybullet_utils import bullet_client
 
 # ----------------------------------------------------------------------------------------------------------
-# 1. Settings and the design vector
+# 1. The design vector and the design spaces (paper Sec. III-B, Table I; facts "Design space")
 # ----------------------------------------------------------------------------------------------------------
-DESIGN_NAMES = ges.FULL_NAMES                         # ("l_f", "l_t", "gcr", "spcf")
-TABLE_I_LOW = np.array([ges.TABLE_I[n][0] for n in DESIGN_NAMES])    # [paper] Table I, defined in ges.py
-TABLE_I_HIGH = np.array([ges.TABLE_I[n][1] for n in DESIGN_NAMES])
-BASELINE = np.array([ges.BASELINE[n] for n in DESIGN_NAMES])         # gcr 0.70 lies outside the bounds
+DESIGN_NAMES = ("l_f", "l_t", "gcr", "spcf")          # the full design vector every lane receives
+TABLE_I = {"l_f": (0.25, 0.55), "l_t": (0.25, 0.55), "gcr": (0.72, 0.90), "spcf": (0.001, 0.100)}   # [paper]
+TABLE_I_LOW = np.array([TABLE_I[n][0] for n in DESIGN_NAMES])
+TABLE_I_HIGH = np.array([TABLE_I[n][1] for n in DESIGN_NAMES])
+BASELINE = np.array([0.45, 0.45, 0.70, 0.002])        # [paper] Table I; gcr 0.70 lies OUTSIDE the bounds
+# Narrower per-task ranges of the authors' code [facts]; "l" is the symmetric leg length of D3.
+TASK_RANGES = {
+    "obstacle": {"gcr": (0.75, 0.89), "spcf": (0.001, 0.010), "l": (0.20, 0.48)},
+    "ramp": {"gcr": (0.725, 0.89), "spcf": (0.005, 0.100), "l": (0.20, 0.48)},
+}
+SPACE_NAMES = DESIGN_NAMES + ("l",)
 # Physical validity (what the simulator can represent at all), wider than any design space. [ours]
 VALID_LOW = np.array([0.05, 0.05, 0.0, 0.0])
 VALID_HIGH = np.array([1.00, 1.00, 0.99, 1.0])
 
+
+@dataclass
+class DesignSpace:
+    """A BALLU design space: a box of free parameters (names, lows, highs) plus fixed values for the rest of
+    (l_f, l_t, gcr, spcf). The free name "l" means l_f = l_t = l (D3). `full` maps a design of the space to the
+    full 4-vector a lane receives. The co-design (ges.py) sees only the box: names, lows, highs."""
+    names: tuple
+    lows: tuple
+    highs: tuple
+    fixed: dict = field(default_factory=dict)
+    task: str | None = None
+
+    def __post_init__(self):
+        self.names = tuple(self.names)
+        self.lows, self.highs = tuple(map(float, self.lows)), tuple(map(float, self.highs))
+        self.fixed = {str(n): float(v) for n, v in self.fixed.items()}
+        if not (len(self.names) == len(self.lows) == len(self.highs) >= 1):
+            raise ValueError(f"names/lows/highs must have the same length >= 1, got {len(self.names)}/"
+                             f"{len(self.lows)}/{len(self.highs)}")
+        for n, lo, hi in zip(self.names, self.lows, self.highs):
+            if n not in SPACE_NAMES:
+                raise ValueError(f"design parameter name {n!r} not in {SPACE_NAMES}")
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"bounds of {n} must be finite with low < high, got [{lo}, {hi}]")
+        for n in DESIGN_NAMES:  # every full parameter must come from somewhere
+            if n not in self.names and n not in self.fixed and not (n in ("l_f", "l_t") and "l" in self.names):
+                raise ValueError(f"parameter {n} is neither free nor fixed in this design space")
+
+    @property
+    def d(self) -> int:
+        return len(self.names)
+
+    @property
+    def lo(self) -> np.ndarray:
+        return np.array(self.lows)
+
+    @property
+    def hi(self) -> np.ndarray:
+        return np.array(self.highs)
+
+    def validate(self, theta) -> np.ndarray:
+        """theta as an (n, d) array, or a ValueError naming the parameter and its range. (ges.Box.validate does
+        the same for GES's box: a small repeat that keeps ges.py free of the robot.)"""
+        arr = np.asarray(theta, dtype=float)
+        arr = arr[None, :] if arr.ndim == 1 else arr
+        if arr.ndim != 2 or arr.shape[1] != self.d:
+            raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
+                             f"columns {self.names}")
+        lo, hi = self.lo, self.hi
+        tol = 1e-9 * (hi - lo)  # round-off of a unit-cube round trip must not be an error
+        for j, n in enumerate(self.names):
+            bad = ~np.isfinite(arr[:, j]) | (arr[:, j] < lo[j] - tol[j]) | (arr[:, j] > hi[j] + tol[j])
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise ValueError(f"{n}={float(arr[i, j])!r} (row {i}) is outside the design space: allowed range "
+                                 f"[{self.lows[j]}, {self.highs[j]}]")
+        return arr
+
+    def sample_uniform(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """n uniform designs of the space (its own coordinates)."""
+        return self.lo + rng.random((n, self.d)) * (self.hi - self.lo)
+
+    def to_dict(self) -> dict:
+        return {"names": list(self.names), "lows": list(self.lows), "highs": list(self.highs),
+                "fixed": dict(self.fixed), "task": self.task}
+
+    def full(self, theta) -> np.ndarray:
+        """(n, 4) array of (l_f, l_t, gcr, spcf) (paper Sec. III-B: D2 fixes the legs, D3 ties them)."""
+        arr = self.validate(theta)
+        cols = []
+        for n in DESIGN_NAMES:
+            if n in self.names:
+                cols.append(arr[:, self.names.index(n)])
+            elif n in ("l_f", "l_t") and "l" in self.names:
+                cols.append(arr[:, self.names.index("l")])
+            else:
+                cols.append(np.full(len(arr), self.fixed[n]))
+        return np.stack(cols, axis=1)
+
+
+def _bounds(names, task, ranges):
+    if task not in (None, "obstacle", "ramp"):
+        raise ValueError(f"task={task!r} not allowed: use None, 'obstacle' or 'ramp'")
+    if ranges not in ("table", "facts"):
+        raise ValueError(f"ranges={ranges!r} not allowed: use 'table' (paper Table I) or 'facts' (per-task)")
+    if ranges == "facts" and task is None:
+        raise ValueError("ranges='facts' needs task='obstacle' or 'ramp' (the facts' ranges are per task)")
+    src = TASK_RANGES[task] if ranges == "facts" else dict(TABLE_I, l=TABLE_I["l_f"])
+    return tuple(src[n][0] for n in names), tuple(src[n][1] for n in names)
+
+
+def d2(task: str | None = None, ranges: str = "table") -> DesignSpace:
+    """D2 = (gcr, spcf) with l_f = l_t = 0.45 m (paper Sec. III-B). ranges='table': Table I bounds [paper];
+    ranges='facts': the narrower per-task ranges of the authors' code [facts]."""
+    lows, highs = _bounds(("gcr", "spcf"), task, ranges)
+    return DesignSpace(("gcr", "spcf"), lows, highs, {"l_f": BASELINE[0], "l_t": BASELINE[1]}, task)
+
+
+def d3(task: str | None = None, ranges: str = "table") -> DesignSpace:
+    """D3 = (gcr, spcf, l) with l_f = l_t = l (paper Sec. III-B). l in Table I's leg range [0.25, 0.55]
+    [paper], or [0.20, 0.48] with ranges='facts' [facts]."""
+    lows, highs = _bounds(("gcr", "spcf", "l"), task, ranges)
+    return DesignSpace(("gcr", "spcf", "l"), lows, highs, {}, task)
+
+
+def check_design(design, low=VALID_LOW, high=VALID_HIGH, what="design") -> np.ndarray:
+    """Return the design(s) as a float array (n, 4); raise ValueError naming the first bad parameter."""
+    d = np.asarray(design, dtype=float)
+    if d.ndim == 1:
+        d = d[None]
+    if d.ndim != 2 or d.shape[1] != 4:
+        raise ValueError(f"{what} must have shape (4,) or (n, 4) = {DESIGN_NAMES}, got {np.shape(design)}")
+    for j, name in enumerate(DESIGN_NAMES):
+        bad = ~np.isfinite(d[:, j]) | (d[:, j] < low[j]) | (d[:, j] > high[j])
+        if bad.any():
+            v = d[np.argmax(bad), j]
+            raise ValueError(f"{what}: {name}={float(v)!r} is outside [{low[j]}, {high[j]}]")
+    return d
+
+
+def normalise_design(design) -> np.ndarray:
+    """theta_m of the observation: Table I bounds mapped to [0, 1] (the baseline's gcr gives -0.11). [ours]"""
+    return (np.asarray(design, dtype=float) - TABLE_I_LOW) / (TABLE_I_HIGH - TABLE_I_LOW)
+
+
+# Design samplers: sampler(rng, n) -> (n, 4) full designs for the lanes that reset (training). Picklable, so
+# worker processes receive them.
+class FixedDesign:
+    """Always one design (a per-design policy, e.g. the baseline's)."""
+
+    def __init__(self, design):
+        self.design = check_design(design)[0]
+
+    def __call__(self, rng, n):
+        return np.tile(self.design, (n, 1))
+
+
+@dataclass
+class UniformDesign:
+    """Uniform over a design space (the e2e baselines' design randomisation)."""
+    space: DesignSpace
+
+    def __call__(self, rng, n):
+        return self.space.full(self.space.sample_uniform(rng, n))
+
+
+@dataclass
+class InSpace:
+    """Any sampler over a space's own coordinates (e.g. a GES territory, ges.GaussianSampler) as full designs."""
+    space: DesignSpace
+    inner: object
+
+    def __call__(self, rng, n):
+        return self.space.full(self.inner(rng, n))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 2. Settings
+# ----------------------------------------------------------------------------------------------------------
 TASKS = ("obstacle", "ramp")
 MAX_LEVEL = 74                                        # [facts] levels 0..74
 MAX_LANES_PER_WORLD = 29   # lanes sharing one spot: collision-filter bits 1..29 (bit 0 is the ground plane)
@@ -150,28 +342,8 @@ class BalluConfig:
         return self.decimation / self.physics_hz
 
 
-def check_design(design, low=VALID_LOW, high=VALID_HIGH, what="design") -> np.ndarray:
-    """Return the design(s) as a float array (n, 4); raise ValueError naming the first bad parameter."""
-    d = np.asarray(design, dtype=float)
-    if d.ndim == 1:
-        d = d[None]
-    if d.ndim != 2 or d.shape[1] != 4:
-        raise ValueError(f"{what} must have shape (4,) or (n, 4) = {DESIGN_NAMES}, got {np.shape(design)}")
-    for j, name in enumerate(DESIGN_NAMES):
-        bad = ~np.isfinite(d[:, j]) | (d[:, j] < low[j]) | (d[:, j] > high[j])
-        if bad.any():
-            v = d[np.argmax(bad), j]
-            raise ValueError(f"{what}: {name}={float(v)!r} is outside [{low[j]}, {high[j]}]")
-    return d
-
-
-def normalise_design(design) -> np.ndarray:
-    """theta_m of the observation: Table I bounds mapped to [0, 1] (the baseline's gcr gives -0.11). [ours]"""
-    return (np.asarray(design, dtype=float) - TABLE_I_LOW) / (TABLE_I_HIGH - TABLE_I_LOW)
-
-
 # ----------------------------------------------------------------------------------------------------------
-# 2. The robot: mass properties and URDF
+# 3. The robot: mass properties and URDF
 # ----------------------------------------------------------------------------------------------------------
 # Link order in the URDF (PyBullet link index = joint index): the root is the pelvis (-1).
 NECK, HIP_L, KNEE_L, HIP_R, KNEE_R = 0, 1, 2, 3, 4
@@ -268,7 +440,7 @@ def robot_urdf(design, cfg: BalluConfig = BalluConfig()) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 3. The knee law and the balloon forces (applied every physics step)
+# 4. The knee law and the balloon forces (applied every physics step)
 # ----------------------------------------------------------------------------------------------------------
 def servo_target(action):
     """Action -> servo angle target m = clip(pi a, 0, pi). [facts]"""
@@ -309,7 +481,7 @@ def quirk_torque(balloon_orn, force, cfg: BalluConfig = BalluConfig()) -> list:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 4. Tasks: terrain, curriculum and rewards
+# 5. Tasks: terrain, curriculum and rewards
 # ----------------------------------------------------------------------------------------------------------
 def task_geometry(task: str) -> dict:
     """Terrain start/end, goal x and curriculum thresholds on the final pelvis x. [facts]"""
@@ -377,46 +549,8 @@ def to_base_frame(quat, v):
     return v - w * t + np.cross(q, t)
 
 
-class _quiet_stdout:
-    """Silence the C-level stdout (file descriptor 1) for the duration of a with-block."""
-
-    def __enter__(self):
-        import sys
-        sys.stdout.flush()
-        self.saved = os.dup(1)
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, 1)
-        os.close(devnull)
-
-    def __exit__(self, *exc):
-        os.dup2(self.saved, 1)
-        os.close(self.saved)
-
-
-class FixedDesign:
-    """A design sampler that always returns one design (training a per-design policy)."""
-
-    def __init__(self, design):
-        self.design = check_design(design)[0]
-
-    def __call__(self, rng, n):
-        return np.tile(self.design, (n, 1))
-
-
-class UniformDesign:
-    """A design sampler uniform over a box of (l_f, l_t, gcr, spcf); equal low/high pins a parameter."""
-
-    def __init__(self, low, high):
-        self.low, self.high = check_design(low)[0], check_design(high)[0]
-        if (self.low > self.high).any():
-            raise ValueError(f"low={self.low.tolist()} must not exceed high={self.high.tolist()}")
-
-    def __call__(self, rng, n):
-        return self.low + (self.high - self.low) * rng.uniform(size=(n, 4))
-
-
 # ----------------------------------------------------------------------------------------------------------
-# 5. BalluEnv: N robots in one world, one lane each
+# 6. BalluEnv: N robots, one lane each, in worlds of a few lanes
 # ----------------------------------------------------------------------------------------------------------
 OBS_NAMES = (["vx", "vy", "vz", "wx", "wy", "wz"] + [f"q_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
              + [f"qd_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
@@ -429,7 +563,7 @@ class _World:
     `cfg.lanes_per_world` lanes stacked at the same spot, each with its own collision-filter bit."""
 
     def __init__(self, cfg: BalluConfig):
-        with _quiet_stdout():   # PyBullet's C code prints "argv[0]=" on every connect
+        with quiet_stdout():   # PyBullet's C code prints "argv[0]=" on every connect
             self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         p, self.cid, self.lanes = self.p, self.p._client, []
         p.setGravity(0, 0, -cfg.gravity)
@@ -717,7 +851,7 @@ class BalluEnv:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. Worker processes: a pool of long-lived workers, and VecBallu (W workers behind the BalluEnv interface)
+# 7. Worker processes: a pool of long-lived workers, and VecBallu (W workers behind the BalluEnv interface)
 # ----------------------------------------------------------------------------------------------------------
 def _serve(conn):
     """A worker's loop: run fn(state, *args) for each request; `state` is this worker's private dict, alive as
@@ -976,7 +1110,7 @@ def make_env(num_envs: int, workers: int = 1, cfg: BalluConfig = BalluConfig(), 
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 7. The score J(policy, design, task) and scripted controllers
+# 8. The score J(policy, design, task) and scripted controllers
 # ----------------------------------------------------------------------------------------------------------
 def stand(obs):
     """Scripted floor 1: zero action (servo released, springs hold the knees straight)."""
@@ -1086,7 +1220,7 @@ def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_lev
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 8. The physics audit and what the robot can do, open loop
+# 9. The physics audit and what the robot can do, open loop
 # ----------------------------------------------------------------------------------------------------------
 JOINT_LIMITS = np.array([[-math.pi / 2, math.pi / 2]] * 3 + [[0.0, math.radians(100)]] * 2)   # JOINTS order
 
@@ -1356,7 +1490,7 @@ def capability_table(workers: int = 2, seed: int = 0, progress=print) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 9. Command line: motion strip and benchmark
+# 10. Command line: motion strip and benchmark
 # ----------------------------------------------------------------------------------------------------------
 def motion_strip(path, policy=None, task="obstacle", level=30, design=BASELINE, frames=8, cfg=None,
                  width=360, height=300):

@@ -47,49 +47,31 @@ from typing import Callable
 import numpy as np
 
 # ---------------------------------------------------------------------------------------------------------
-# Design spaces (paper Sec. III-B, Table I; facts "Design space")
+# The design space: a box of named bounds (paper Sec. IV-B works in the normalised box [0, 1]^d)
 # ---------------------------------------------------------------------------------------------------------
-FULL_NAMES = ("l_f", "l_t", "gcr", "spcf")  # order of the full 4-vector every simulator receives
-TABLE_I = {"l_f": (0.25, 0.55), "l_t": (0.25, 0.55), "gcr": (0.72, 0.90), "spcf": (0.001, 0.100)}
-# Baseline BALLU (paper Table I). Its GCR 0.70 is OUTSIDE the bounds: a fixed reference, not a sample.
-BASELINE = {"l_f": 0.45, "l_t": 0.45, "gcr": 0.70, "spcf": 0.002}
-# Narrower per-task ranges of the authors' code (facts); "l" is the symmetric leg length of D3.
-TASK_RANGES = {
-    "obstacle": {"gcr": (0.75, 0.89), "spcf": (0.001, 0.010), "l": (0.20, 0.48)},
-    "ramp": {"gcr": (0.725, 0.89), "spcf": (0.005, 0.100), "l": (0.20, 0.48)},
-}
-_KNOWN_NAMES = FULL_NAMES + ("l",)
-
-
 @dataclass
-class DesignSpace:
-    """An axis-aligned box of free design parameters plus fixed values for the rest of (l_f, l_t, gcr, spcf).
-
-    The free name "l" means l_f = l_t = l (paper's D3). GES works in the unit cube [0,1]^d (paper Sec. IV-B);
-    the mapping is linear per axis (paper: "normalized design space"), also for SPCF although it spans two
-    decades (a log axis would be ours, not the paper's).
-    """
+class Box:
+    """An axis-aligned box of named design parameters, physical units. GES works in the unit cube [0,1]^d
+    (paper Sec. IV-B: "normalized design space"), mapped linearly per axis. What a design means (a robot's
+    legs, buoyancy, springs) is the caller's business: ballu.py builds its D2/D3 as Boxes' names and bounds."""
     names: tuple
     lows: tuple
     highs: tuple
-    fixed: dict = field(default_factory=dict)
-    task: str | None = None
 
     def __post_init__(self):
-        self.names = tuple(self.names)
+        self.names = tuple(str(n) for n in self.names)
         self.lows, self.highs = tuple(map(float, self.lows)), tuple(map(float, self.highs))
-        self.fixed = {str(n): float(v) for n, v in self.fixed.items()}
         if not (len(self.names) == len(self.lows) == len(self.highs) >= 1):
             raise ValueError(f"names/lows/highs must have the same length >= 1, got {len(self.names)}/"
                              f"{len(self.lows)}/{len(self.highs)}")
         for n, lo, hi in zip(self.names, self.lows, self.highs):
-            if n not in _KNOWN_NAMES:
-                raise ValueError(f"design parameter name {n!r} not in {_KNOWN_NAMES}")
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
                 raise ValueError(f"bounds of {n} must be finite with low < high, got [{lo}, {hi}]")
-        for n in FULL_NAMES:  # every full parameter must come from somewhere
-            if n not in self.names and n not in self.fixed and not (n in ("l_f", "l_t") and "l" in self.names):
-                raise ValueError(f"parameter {n} is neither free nor fixed in this design space")
+
+    @classmethod
+    def of(cls, space) -> "Box":
+        """The box of any object with names, lows and highs (e.g. a ballu.DesignSpace)."""
+        return cls(tuple(space.names), tuple(space.lows), tuple(space.highs))
 
     @property
     def d(self) -> int:
@@ -131,53 +113,12 @@ class DesignSpace:
         """n uniform designs, physical units."""
         return self.from_unit(rng.random((n, self.d)))
 
-    def full(self, theta) -> np.ndarray:
-        """(n, 4) array of (l_f, l_t, gcr, spcf) for the simulator (paper Sec. III-B: D2 fixes the legs,
-        D3 ties them: l_f = l_t = l)."""
-        arr = self.validate(theta)
-        cols = []
-        for n in FULL_NAMES:
-            if n in self.names:
-                cols.append(arr[:, self.names.index(n)])
-            elif n in ("l_f", "l_t") and "l" in self.names:
-                cols.append(arr[:, self.names.index("l")])
-            else:
-                cols.append(np.full(len(arr), self.fixed[n]))
-        return np.stack(cols, axis=1)
-
     def to_dict(self) -> dict:
-        return {"names": list(self.names), "lows": list(self.lows), "highs": list(self.highs),
-                "fixed": dict(self.fixed), "task": self.task}
+        return {"names": list(self.names), "lows": list(self.lows), "highs": list(self.highs)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "DesignSpace":
-        return cls(tuple(d["names"]), tuple(d["lows"]), tuple(d["highs"]), dict(d["fixed"]), d.get("task"))
-
-
-def _bounds(names, task, ranges):
-    if task not in (None, "obstacle", "ramp"):
-        raise ValueError(f"task={task!r} not allowed: use None, 'obstacle' or 'ramp'")
-    if ranges not in ("table", "facts"):
-        raise ValueError(f"ranges={ranges!r} not allowed: use 'table' (paper Table I) or 'facts' (per-task)")
-    if ranges == "facts" and task is None:
-        raise ValueError("ranges='facts' needs task='obstacle' or 'ramp' (the facts' ranges are per task)")
-    table = dict(TABLE_I, l=TABLE_I["l_f"])
-    src = TASK_RANGES[task] if ranges == "facts" else table
-    return tuple(src[n][0] for n in names), tuple(src[n][1] for n in names)
-
-
-def d2(task: str | None = None, ranges: str = "table") -> DesignSpace:
-    """D2 = (GCR, SPCF) with l_f = l_t = 0.45 m (paper Sec. III-B). ranges='table': Table I bounds (paper);
-    ranges='facts': the narrower per-task ranges of the authors' code (facts)."""
-    lows, highs = _bounds(("gcr", "spcf"), task, ranges)
-    return DesignSpace(("gcr", "spcf"), lows, highs, {"l_f": BASELINE["l_f"], "l_t": BASELINE["l_t"]}, task)
-
-
-def d3(task: str | None = None, ranges: str = "table") -> DesignSpace:
-    """D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B). l in Table I's leg range [0.25, 0.55]
-    (paper), or [0.20, 0.48] with ranges='facts' (facts)."""
-    lows, highs = _bounds(("gcr", "spcf", "l"), task, ranges)
-    return DesignSpace(("gcr", "spcf", "l"), lows, highs, {}, task)
+    def from_dict(cls, d: dict) -> "Box":
+        return cls(tuple(d["names"]), tuple(d["lows"]), tuple(d["highs"]))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -379,7 +320,7 @@ class GaussianSampler:
     (seed, round, k)) is for the trainer's own RNGs."""
     mu: np.ndarray      # (d,) unit
     sigma: np.ndarray   # (d,) unit
-    space: DesignSpace
+    space: Box
     seed: int = 0
 
     def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -453,7 +394,7 @@ def _history_doc(space, config, seed, entries) -> dict:
     return {"space": space.to_dict(), "config": asdict(config), "seed": seed, "rounds": entries}
 
 
-def initial_state(space: DesignSpace, config: GESConfig, seed: int, points: np.ndarray) -> dict:
+def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) -> dict:
     """Alg. 1 lines 1-4: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k."""
     mu = init_centers(config.init, config.K, space.d, rng_for(seed, INIT), config.fps_pool, config.lloyd_iters)
     sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
@@ -467,13 +408,13 @@ def initial_state(space: DesignSpace, config: GESConfig, seed: int, points: np.n
     return state
 
 
-def _load_state(run_dir: str, space: DesignSpace, config: GESConfig, seed: int) -> dict | None:
+def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> dict | None:
     path = os.path.join(run_dir, STATE_FILE)
     if not os.path.exists(path):
         return None
     with open(path) as fh:
         state = json.load(fh)
-    for what, saved, now in (("space", state["space"], space.to_dict()), ("config", state["config"],
+    for what, saved, now in (("space", Box.from_dict(state["space"]).to_dict(), space.to_dict()), ("config", state["config"],
                              asdict(config)), ("seed", state["seed"], seed)):
         if saved != now:
             raise ValueError(f"run_dir={run_dir!r} holds a run with a different {what} ({saved} vs {now}); "
@@ -490,7 +431,7 @@ def _save_state(run_dir, space, config, seed, state) -> None:
 @dataclass(eq=False)
 class GESResult:
     """What GES hands to the outer search: territories (unit and physical), final checkpoints, history."""
-    space: DesignSpace
+    space: Box
     config: GESConfig
     seed: int
     run_dir: str
@@ -520,7 +461,7 @@ def load_result(run_dir: str) -> GESResult:
     """Rebuild the GESResult of a (finished or interrupted) run from its state.json."""
     with open(os.path.join(run_dir, STATE_FILE)) as fh:
         state = json.load(fh)
-    space = DesignSpace.from_dict(state["space"])
+    space = Box.from_dict(state["space"])
     return _result(run_dir, space, GESConfig(**state["config"]), state["seed"], state)
 
 
@@ -562,7 +503,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     return new
 
 
-def run_ges(space: DesignSpace, train_fn: Callable, score_fn: Callable, run_dir: str,
+def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
             config: GESConfig | None = None, seed: int = 0, executor: Executor | None = None,
             progress: Callable[[str], None] | None = print) -> GESResult:
     """Run (or resume) GES until MC coverage >= target or max_rounds (paper Alg. 1).
@@ -571,7 +512,7 @@ def run_ges(space: DesignSpace, train_fn: Callable, score_fn: Callable, run_dir:
     the last completed round and ends with exactly the result of an uninterrupted run (all randomness derives
     from (seed, round, k)). executor=None uses a ProcessPoolExecutor with os.cpu_count() workers; pass
     SerialExecutor() to debug. train_fn, score_fn: see the module docstring."""
-    config = config or GESConfig()
+    config, space = config or GESConfig(), Box.of(space)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed={seed!r} not allowed: a non-negative integer")
     say = progress or (lambda s: None)
@@ -651,7 +592,7 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
     from matplotlib.figure import Figure
     from matplotlib.patches import Ellipse
 
-    space, rounds = DesignSpace.from_dict(history["space"]), history["rounds"]
+    space, rounds = Box.from_dict(history["space"]), history["rounds"]
     lo, hi, d = space.lo, space.hi, space.d
     pairs = [(0, 1)] if d == 2 else [(i, j) for i in range(d) for j in range(i + 1, d)]
     snaps = _snapshots(len(rounds))
@@ -710,7 +651,6 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
     else:
         ax.legend(handles, labels, fontsize=7, loc="lower right", framealpha=0.9)
     fig.suptitle(f"GES territories (2-sigma ellipses, dots: probes won this round), K={K}, d={d}"
-                 + (f", task {space.task}" if space.task else "")
                  + ("; grey/dashed: planted regions" if background is not None and d == 2 else ""))
     fig.savefig(path, dpi=110)
     return path
@@ -726,7 +666,7 @@ class PlantedLandscape:
     A specialist is a logit vector p over behaviours; its score on x is sum_b softmax(p)_b q_b(x). train()
     really improves it: gradient ascent on the mean score over designs drawn from its territory, i.e. toward
     the behaviour best on the designs it is given. Checkpoints are small JSON files. Picklable."""
-    space: DesignSpace
+    space: Box
     sites: np.ndarray
     width: float = 0.3
     n_designs: int = 64
@@ -765,8 +705,8 @@ DEMO_SITES_2D = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])
 
 
 def demo(out_dir: str, dim: int = 2, seed: int = 0, workers: int = 1) -> GESResult:
-    """Run GES on the planted landscape (D2 with K=3, or D3 with K=6) and write out_dir/territories.png."""
-    space = d2() if dim == 2 else d3()
+    """Run GES on the planted landscape (a 2-D box with K=3, or 3-D with K=6); write out_dir/territories.png."""
+    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
     K = 3 if dim == 2 else 6
     sites = DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3))
     land = PlantedLandscape(space, sites)
@@ -809,7 +749,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bench", action="store_true", help="time coverage and routing")
     ap.add_argument("--demo", metavar="OUT_DIR", help="run the synthetic landscape, write territories.png")
-    ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="demo design space D2 or D3")
+    ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1, help="demo: >1 uses a ProcessPoolExecutor")
     args = ap.parse_args()

@@ -5,7 +5,8 @@ Read top to bottom:
   2. running observation normalisation
   3. actor-critics: `MLPActorCritic` (e2e MLP and every GES specialist), `MoEActorCritic` (e2e MoE)
   4. GAE and the PPO update (clipped surrogate, value loss, entropy bonus, adaptive-KL learning rate)
-  5. `train(...)`: rollouts on any batched env, curriculum, checkpoints, CSV log, learning curve
+  5. the trainer: checkpoints, `rollout` (here or in the env's workers), `start_run` (resume, warm start or fresh),
+     `TrainLog` (CSV + progress line), `train(...)` (rollout -> GAE -> PPO update, curriculum), learning curve
   6. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
   7. command line: --bench, --train
 
@@ -22,6 +23,7 @@ import csv
 import math
 import os
 import time
+from collections import deque
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -324,25 +326,18 @@ def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: in
     return buf, obs, info, returns
 
 
-_WORKER_POLICY = {}   # one policy copy per worker process, built on first use, reloaded every update
+_POLICY_COPIES = {}   # a worker's policy per (kind, weight shapes): built once (ms), then only given new weights
 
 
-def _rollout_in_worker(env, kind, dims, cfg, weights, norm_state, obs, T, noise_seed):
-    """ppo.train's rollout as run inside a VecBallu worker (see VecBallu.run)."""
-    key = (kind, dims, repr(cfg))   # a worker may serve several train() calls
-    if key not in _WORKER_POLICY:
-        torch.set_num_threads(1)   # the two workers own the two cores
-        _WORKER_POLICY[key] = make_policy(kind, *dims, cfg)
-    policy = _WORKER_POLICY[key]
-    policy.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
-    norm = RunningNorm(dims[0], cfg.obs_clip)
-    norm.mean, norm.var, norm.count = norm_state
+def _rollout_in_worker(env, kind, cfg, weights, norm, obs, T, noise_seed):
+    """`rollout_lanes` in one worker of a multi-process env (called there by env.run), with its policy copy."""
+    key = (kind, *(w.shape for w in weights.values()))
+    if key not in _POLICY_COPIES:
+        torch.set_num_threads(1)   # the workers own the cores, one each
+        _POLICY_COPIES[key] = make_policy(kind, env.obs_dim, env.act_dim, cfg)
+    policy = _POLICY_COPIES[key]
+    policy.load_state_dict({k: torch.from_numpy(w) for k, w in weights.items()})
     return rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
-
-
-def _concat(dicts, axis):
-    """Per key, the workers' arrays joined along the lane axis."""
-    return {k: np.concatenate([np.asarray(d[k]) for d in dicts], axis=axis) for k in dicts[0]}
 
 
 def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: int):
@@ -353,16 +348,91 @@ def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: in
     (stepping the workers from here, one round trip per 20 Hz step, ran at ~91 % of env-only). Any other env
     is rolled out in this process."""
     if hasattr(env, "run"):
-        weights = {k: v.detach().numpy().copy() for k, v in policy.state_dict().items()}
-        args = [(kind, (env.obs_dim, env.act_dim), cfg, weights, (norm.mean, norm.var, norm.count), obs[ids], T,
-                 noise_seed) for ids in env.parts]
-        bufs, obss, infos, rets = zip(*env.run(_rollout_in_worker, args))
-        buf, info = _concat(bufs, axis=1), _concat(infos, axis=0)   # buffers are (T, lanes, ...)
+        weights = {k: v.numpy() for k, v in policy.state_dict().items()}   # arrays: a sent tensor goes to shared memory
+        parts = env.run(_rollout_in_worker, [(kind, cfg, weights, norm, obs[ids], T, noise_seed) for ids in env.parts])
+        bufs, obss, infos, rets = zip(*parts)
+        join = lambda dicts, axis: {k: np.concatenate([np.asarray(d[k]) for d in dicts], axis) for k in dicts[0]}
+        buf, info = join(bufs, 1), join(infos, 0)   # buffers are (T, lanes, ...)
         obs, returns = np.concatenate(obss), [r for ret in rets for r in ret]
     else:
         buf, obs, info, returns = rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
     norm.update(buf.pop("new_obs").reshape(-1, obs.shape[1]))
     return buf, obs, info, returns
+
+
+def flatten_batch(buf, adv, ret, std) -> dict:
+    """The (T, N, ...) rollout as (T * N, ...) tensors for the minibatches; `std` is the rollout's action std."""
+    flat = lambda x: torch.from_numpy(np.ascontiguousarray(x.reshape((-1,) + x.shape[2:])))
+    batch = {k: flat(buf[k]) for k in ("obs", "act", "mu", "logp")}
+    batch.update(adv=flat(adv), ret=flat(ret), std=std.expand(len(batch["obs"]), -1))
+    return batch
+
+
+def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
+    """Where a run starts: resumed from `ckpt` if it exists (random streams included), else warm-started from
+    `init_ckpt`, else fresh from `seed`. Returns (policy, norm, opt, rng, lr, steps, levels)."""
+    resume = ckpt if os.path.exists(ckpt) else init_ckpt
+    state = load_checkpoint(resume) if resume else None
+    if resume != ckpt:
+        torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
+    if state is None:
+        policy, norm = make_policy(kind, env.obs_dim, env.act_dim, cfg), RunningNorm(env.obs_dim, cfg.obs_clip)
+    elif (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
+        raise ValueError(f"checkpoint {resume!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
+                         f" act {state['act_dim']}, not a {kind} policy for obs {env.obs_dim} / act {env.act_dim}")
+    else:
+        policy, norm = policy_from(state)
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
+    rng = np.random.default_rng([seed, 1])
+    if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
+        levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
+    else:
+        levels = np.full(env.num_envs, start_level)
+    if state is None:
+        return policy, norm, opt, rng, cfg.lr, 0, levels
+    opt.load_state_dict(state["optimizer"])
+    if len(state["levels"]):
+        levels = np.resize(state["levels"].numpy(), env.num_envs)
+    if resume == ckpt:   # resuming this very run: continue its random streams too
+        rng.bit_generator.state = state["rng"]
+        torch.set_rng_state(state["torch_rng"])
+    return policy, norm, opt, rng, state["lr"], state["steps"], levels   # steps: counted from the first update ever
+
+
+class TrainLog:
+    """Per update, one row appended to the CSV log (if `log_csv`) and one progress line (if `progress`)."""
+    COLUMNS = ["steps", "wall_s", "steps_per_s", "mean_reward", "episode_return", "mean_level", "kl", "lr",
+               "value_loss", "entropy", "std"]
+
+    def __init__(self, log_csv, progress, kind: str, total_steps: int):
+        self.file = open(log_csv, "a", newline="") if log_csv else None
+        self.csv = csv.writer(self.file) if self.file else None
+        if self.file and self.file.tell() == 0:
+            self.csv.writerow(self.COLUMNS)
+        self.progress, self.kind, self.total_steps, self.t_start = progress, kind, total_steps, time.time()
+
+    def write(self, steps, n, t0, t_roll, reward, ep_ret, level, st, lr, std):
+        """The update that began at time t0 and ended at `steps`: `n` steps, `t_roll` seconds of rollout."""
+        dt = time.time() - t0
+        rate = n / dt
+        row = [steps, round(time.time() - self.t_start, 2), round(rate, 1), reward, ep_ret, level, st["kl"], lr,
+               st["value_loss"], st["entropy"], std]
+        if self.csv:
+            self.csv.writerow(row)
+            self.file.flush()
+        if self.progress:
+            eta = (self.total_steps - steps) / max(rate, 1e-9)
+            self.progress(f"[{self.kind}] {steps:>9,}/{self.total_steps:,} steps  {rate:6.0f} steps/s (rollout "
+                          f"{100 * t_roll / dt:3.0f}%)  reward {reward:+.3f}  return {ep_ret:+8.2f}  "
+                          f"level {level:5.1f}  kl {st['kl']:.4f}  lr {lr:.1e}  std {std:.2f}  "
+                          f"eta {eta / 60:5.1f} min")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.file:
+            self.file.close()
 
 
 def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
@@ -379,83 +449,40 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. Returns a summary of the last
     iteration.
     """
-    if env.num_envs < 1 or total_steps < 1:
+    if env.num_envs < 1:
+        raise ValueError(f"env.num_envs={env.num_envs!r} must be >= 1")
+    if total_steps < 1:
         raise ValueError(f"total_steps={total_steps!r} must be >= 1")
     torch.set_num_threads(1)   # the env workers own the cores; the update is small
-    resume = ckpt if os.path.exists(ckpt) else init_ckpt
-    state = load_checkpoint(resume) if resume else None
-    if resume != ckpt:
-        torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
-    if state is not None:
-        if (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
-            raise ValueError(f"checkpoint {resume!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
-                             f" act {state['act_dim']}, not a {kind} policy for obs {env.obs_dim} / act {env.act_dim}")
-        policy, norm = policy_from(state)
-    else:
-        policy, norm = make_policy(kind, env.obs_dim, env.act_dim, cfg), RunningNorm(env.obs_dim, cfg.obs_clip)
-    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
-    rng = np.random.default_rng([seed, 1])
-    lr, steps = cfg.lr, 0
-    if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
-        levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
-    else:
-        levels = np.full(env.num_envs, start_level)
-    if state is not None:
-        opt.load_state_dict(state["optimizer"])
-        lr = state["lr"]
-        lv = state["levels"].numpy()
-        levels = np.resize(lv, env.num_envs) if len(lv) else levels
-        steps = state["steps"]   # total_steps counts from the very first update, warm starts included
-        if resume == ckpt:       # resuming this very run: continue its random streams too
-            rng.bit_generator.state = state["rng"]
-            torch.set_rng_state(state["torch_rng"])
+    policy, norm, opt, rng, lr, steps, levels = start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level)
     if steps >= total_steps:
         return {"steps": steps, "resumed": True}
-    obs, info = env.reset(seed=int(rng.integers(2 ** 31)),
+    obs, _ = env.reset(seed=int(rng.integers(2 ** 31)),
                           options={"design_sampler": design_sampler, "levels": levels})
-    T, N = cfg.num_steps, env.num_envs
     norm.update(obs)
-    log = open(log_csv, "a", newline="") if log_csv else None
-    writer = csv.writer(log) if log else None
-    if log and log.tell() == 0:
-        writer.writerow(["steps", "wall_s", "steps_per_s", "mean_reward", "episode_return", "mean_level",
-                         "kl", "lr", "value_loss", "entropy", "std"])
-    t_start, it, ep_returns = time.time(), 0, []
-    while steps < total_steps:
-        t0 = time.time()
-        buf, obs, info, done_returns = rollout(kind, policy, norm, env, obs, T, cfg, int(rng.integers(2 ** 31)))
-        ep_returns.extend(done_returns)
-        std = policy.log_std.exp().detach()
-        with torch.no_grad():
-            last_v = policy.value(torch.from_numpy(norm(obs))).numpy()
-        adv, ret = gae(buf["rew"], buf["val"], buf["done"], last_v, cfg.gamma, cfg.lam)
-        flat = lambda x: torch.from_numpy(np.ascontiguousarray(x.reshape((T * N,) + x.shape[2:])))
-        batch = {k: flat(buf[k]) for k in ("obs", "act", "mu", "logp")}
-        batch.update(adv=flat(adv), ret=flat(ret), std=std.expand(T * N, -1))
-        t_roll = time.time() - t0
-        lr, st = ppo_update(policy, opt, batch, cfg, lr, rng)
-        steps += T * N
-        it += 1
-        levels = np.asarray(info["levels"])
-        rate = T * N / (time.time() - t0)
-        ep_ret = float(np.mean(ep_returns[-100:])) if ep_returns else float("nan")
-        row = [steps, round(time.time() - t_start, 2), round(rate, 1), float(buf["rew"].mean()), ep_ret,
-               float(levels.mean()), st["kl"], lr, st["value_loss"], st["entropy"], float(std.mean())]
-        if writer:
-            writer.writerow(row)
-            log.flush()
-        if progress:
-            eta = (total_steps - steps) / max(rate, 1e-9)
-            progress(f"[{kind}] {steps:>9,}/{total_steps:,} steps  {rate:6.0f} steps/s (rollout "
-                     f"{100 * t_roll / (time.time() - t0):3.0f}%)  reward {row[3]:+.3f}  return {ep_ret:+8.2f}  "
-                     f"level {levels.mean():5.1f}  kl {st['kl']:.4f}  lr {lr:.1e}  std {row[10]:.2f}  "
-                     f"eta {eta / 60:5.1f} min")
-        if it % cfg.ckpt_every == 0 or steps >= total_steps:
-            save_checkpoint(ckpt, policy, opt, norm, kind, cfg, steps, lr, levels, rng)
-    if log:
-        log.close()
+    T, N = cfg.num_steps, env.num_envs
+    it, ep_returns = 0, deque(maxlen=100)
+    with TrainLog(log_csv, progress, kind, total_steps) as log:
+        while steps < total_steps:
+            t0 = time.time()
+            buf, obs, info, finished = rollout(kind, policy, norm, env, obs, T, cfg, int(rng.integers(2 ** 31)))
+            with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
+                last_value = policy.value(torch.from_numpy(norm(obs))).numpy()
+            adv, ret = gae(buf["rew"], buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
+            std = policy.log_std.exp().detach()
+            batch = flatten_batch(buf, adv, ret, std)
+            t_roll = time.time() - t0
+            lr, st = ppo_update(policy, opt, batch, cfg, lr, rng)
+            steps, it = steps + T * N, it + 1
+            ep_returns.extend(finished)
+            levels = np.asarray(info["levels"])
+            ep_ret = float(np.mean(ep_returns)) if ep_returns else float("nan")   # of the last 100 episodes
+            log.write(steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, float(levels.mean()), st, lr,
+                      float(std.mean()))
+            if it % cfg.ckpt_every == 0 or steps >= total_steps:
+                save_checkpoint(ckpt, policy, opt, norm, kind, cfg, steps, lr, levels, rng)
     return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
-            "wall_s": time.time() - t_start}
+            "wall_s": time.time() - log.t_start}
 
 
 def plot_learning_curve(log_csv: str, path: str, title: str = ""):
@@ -516,12 +543,11 @@ def load_policy(path: str) -> PolicyFn:
 # ----------------------------------------------------------------------------------------------------------
 def _ballu_sampler(name: str):
     import ballu
-    d2_low, d2_high = [0.45, 0.45, 0.72, 0.001], [0.45, 0.45, 0.90, 0.100]
-    named = {"baseline": ballu.BASELINE, "d2c": [0.45, 0.45, 0.81, 0.0505]}
+    named = {"baseline": ballu.BASELINE, "d2c": [0.45, 0.45, 0.81, 0.0505]}   # d2c: the centre of D2
     if name in named:
         return ballu.FixedDesign(named[name])
     if name == "d2":
-        return ballu.UniformDesign(d2_low, d2_high)
+        return ballu.UniformDesign(ballu.d2())
     return ballu.FixedDesign([float(v) for v in name.split(",")])
 
 
@@ -562,8 +588,16 @@ def _main(argv=None):
     ap.add_argument("--policy", metavar="CKPT", help="a checkpoint of this trainer, for --strip")
     ap.add_argument("--level", type=int, default=30, help="terrain level of the --strip episode")
     args = ap.parse_args(argv)
-    if not args.entropy >= 0:
-        ap.error(f"--entropy {args.entropy} must be >= 0")
+    checks = (("--steps", args.steps, ">= 1", args.steps >= 1),
+              ("--envs", args.envs, ">= 1", args.envs >= 1),
+              ("--rollout", args.rollout, ">= 1", args.rollout >= 1),
+              ("--workers", args.workers, f"in [1, --envs {args.envs}]", 1 <= args.workers <= args.envs),
+              ("--seed", args.seed, "in [0, 2**64 - 1]", 0 <= args.seed < 2 ** 64),
+              ("--entropy", args.entropy, "finite and >= 0", 0 <= args.entropy < math.inf),
+              ("--init-mean", args.init_mean, "finite", abs(args.init_mean) < math.inf))   # NaN fails them all
+    for opt, value, rule, ok in checks:
+        if not ok:
+            ap.error(f"{opt} {value} must be {rule}")
     cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean,
                     entropy_coef=args.entropy)
     bcfg = ballu.BalluConfig(task=args.task, reward_form=args.reward)

@@ -3,11 +3,12 @@
     python run_all.py [--preset smoke|quick|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S] [--fresh]
 
 Read top to bottom:
-  1. the paper's numbers, quoted from paper/ges_paper.tex (printed beside ours, never mixed with them)
+  1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
+     design sampler; GES's train and score callables (ges.py's contract); J(theta) of every method, GES's
+     through the density router (eq. 10, ges.RoutedEvaluator)
   2. presets: every budget of a run in one dataclass, with the timing arithmetic next to each preset
   3. small tools: derived seeds, atomic JSON, progress lines with ETA, a kill hook for the resume test
-  4. policies: PPO training of one policy, the GES specialists' train/score callables, GES as one policy
-  5. stages (each a function, each name usable with --only):
+  4. stages (each a function, each name usable with --only):
        table1     the design space and the baseline design                       (paper Table I)
        baselines  PPO policies: baseline design, e2e MLP and e2e MoE per task/space (Sec. V-A)
        ges        GES stage 1 for obstacle/ramp x D2/D3 (K = 3 / 6)                 (Alg. 1)
@@ -16,7 +17,9 @@ Read top to bottom:
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
        cost       GES co-design vs per-design BO wall time                          (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve
-  6. REPORT.md: every table with each cell as "ours (paper)", the budgets, seed, commit, wall times
+  5. figures
+  6. REPORT.md: the paper's numbers (quoted from the tex) and every table with each cell as "ours (paper)",
+     the budgets, seed, commit, wall times
   7. the command line
 
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
@@ -57,7 +60,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS_FORMAT = 1   # bump when what a stage computes or stores changes: old result folders are then refused
 
 # ----------------------------------------------------------------------------------------------------------
-# 1. The paper's numbers (quoted from paper/ges_paper.tex; "None" = the paper gives no number)
+# 1. The co-design of BALLU (paper Sec. IV): tasks, spaces, methods; training a policy; GES's train and score
+#    callables; J(theta) of each method, GES's through the density router (eq. 10)
 # ----------------------------------------------------------------------------------------------------------
 TASKS = ("obstacle", "ramp")
 SPACES = ("d2", "d3")
@@ -65,35 +69,137 @@ UNIT = {"obstacle": "cm", "ramp": "deg"}
 METHODS = ("baseline", "mlp", "moe", "ges")          # "baseline" = the baseline design's own policy
 METHOD_NAMES = {"baseline": "baseline policy", "mlp": "e2e MLP", "moe": "e2e MoE", "ges": "GES"}
 
-# Table I "BALLU morphology parameters": (lower, upper, baseline)
-PAPER_TABLE1 = {"l_f": (0.25, 0.55, 0.45), "l_t": (0.25, 0.55, 0.45), "gcr": (0.72, 0.90, 0.70),
-                "spcf": (0.001, 0.100, 0.002)}
-# Table II "Mean Simulation Performance": baseline design, e2e MLP, e2e MoE, GES (cm / degrees)
-PAPER_TABLE2 = {("obstacle", "d2"): {"design": 14.2, "mlp": 29.4, "moe": 34.0, "ges": 36.9},
-                ("obstacle", "d3"): {"design": 14.2, "mlp": 24.5, "moe": 21.2, "ges": 29.1},
-                ("ramp", "d2"): {"design": 25.1, "mlp": 27.9, "moe": 28.4, "ges": 31.4},
-                ("ramp", "d3"): {"design": 25.1, "mlp": 28.3, "moe": 27.9, "ges": 29.7}}
-# Sec. V-B text: peak scores found by the design search ("GES finds designs that clear a 54 cm obstacle,
-# versus 38 cm for e2e MLP and 52 cm for e2e MoE", ...); the ramp 3D peaks are given only as a gain (~8 %).
-PAPER_PEAK = {("obstacle", "d2"): {"mlp": 38.0, "moe": 52.0, "ges": 54.0},
-              ("obstacle", "d3"): {"mlp": 41.0, "moe": None, "ges": 54.0},
-              ("ramp", "d2"): {"mlp": 32.61, "moe": 32.61, "ges": 36.25},
-              ("ramp", "d3"): {"mlp": None, "moe": None, "ges": None}}
-# Sec. V-B/V-D text: the GES-optimised designs (GCR 0.88, SPCF 0.008 obstacle D2; leg 45.58 cm obstacle D3;
-# leg 31.45 cm ramp D3)
-PAPER_PEAK_DESIGN = {("obstacle", "d2"): "gcr=0.88 spcf=0.008", ("obstacle", "d3"): "l=0.4558",
-                     ("ramp", "d2"): None, ("ramp", "d3"): "l=0.3145"}
-# Sec. V-B text: head-to-head win rates of GES over 1000 test designs (%)
-PAPER_WINS = {("obstacle", "d2"): {"mlp": 94, "moe": 72}, ("obstacle", "d3"): {"mlp": 68, "moe": 76},
-              ("ramp", "d2"): {"mlp": 81, "moe": 78}, ("ramp", "d3"): {"mlp": 75, "moe": 86}}
-# Table III "Impact of initialization strategy" (K = 3, obstacle, D2): mean, min, max in cm
-PAPER_TABLE3 = {"grid": (29.7, 22, 43), "random": (31.5, 24, 45), "fps": (34.5, 22, 52),
-                "fps+lloyd": (35.2, 24, 52)}
-# Fig. 7: no numbers in the text, only "Performance peaks at K = 3 and degrades for larger K"
-PAPER_KSENS_PEAK_K = 3
-# Sec. V-D "Computational Cost": ~100 h per-design BO vs ~63 h GES on the 3D space, a 37 % reduction;
-# Stage 1 for K = 6 took 48 h.
-PAPER_COST = {"bo_h": 100.0, "ges_h": 63.0, "reduction_pct": 37.0, "stage1_h": 48.0}
+
+def space_of(preset: Preset, task: str, sp: str) -> ballu.DesignSpace:
+    """D2 = (GCR, SPCF) with l_f = l_t = 0.45; D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B)."""
+    return (ballu.d2 if sp == "d2" else ballu.d3)(task, preset.ranges)
+
+
+def ppo_config(preset: Preset) -> ppo.PPOConfig:
+    return ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout,
+                         init_action_mean=preset.ppo_init_action_mean)
+
+
+def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
+                 workers: int, label: str) -> str:
+    """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
+
+    A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates): that continuation
+    restarts episodes, so it is close to, not bit-identical with, an uninterrupted run."""
+    os.makedirs(folder, exist_ok=True)
+    ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
+    have = ppo.load_checkpoint(ckpt)["steps"] if os.path.exists(ckpt) else 0
+    if have >= steps:
+        return ckpt
+    if have:
+        trim_log(log, have)
+    elif os.path.exists(log):
+        os.remove(log)
+    cfg = ppo_config(preset)   # few lanes stay in-process: a spawned worker costs ~2 s of imports
+    env = ballu.make_env(cfg.num_envs, max(1, min(workers, cfg.num_envs // 8)), ballu.BalluConfig(task=task))
+    try:
+        ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, log_csv=log, progress=Throttled(label))
+    finally:
+        env.close()
+    return ckpt
+
+
+@dataclass
+class TrainSpecialist:
+    """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
+
+    Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
+    and step count carry over) and trains to (r + 1) * round_steps control steps. A repeated (interrupted)
+    round first deletes its partial output, so it is identical to an uninterrupted one."""
+    task: str
+    space: ballu.DesignSpace
+    round_steps: int
+    preset: Preset
+    warm_ckpt: str = ""   # Preset.ges_warm_start: round 0 starts from this policy (the cell's e2e MLP)
+
+    def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
+        log = ckpt_out + ".csv"
+        for f in (ckpt_out, log):
+            if os.path.exists(f):
+                os.remove(f)
+        cfg = ppo_config(self.preset)
+        base = ppo.load_checkpoint(self.warm_ckpt)["steps"] if self.warm_ckpt else 0
+        env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
+        try:
+            ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + (round + 1) * self.round_steps,
+                      ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed, log_csv=log,
+                      progress=None)
+        finally:
+            env.close()
+
+
+@dataclass
+class ScoreSpecialist:
+    """GES score_fn (ges.py contract): the paper's J of specialist k's deterministic policy on each design (one
+    lane each). Inside GES's rounds the specialists are scored side by side, one process each (workers=1)."""
+    task: str
+    space: ballu.DesignSpace
+    episodes: int
+    workers: int = 1
+    label: str = ""
+
+    def __call__(self, k, ckpt, designs):
+        return ballu.score(ppo.load_policy(ckpt), self.space.full(designs), self.task, episodes=self.episodes,
+                           workers=max(1, min(self.workers, len(designs))),
+                           progress=Throttled(f"{self.label} specialist {k}") if self.label else None)
+
+
+def score_policy(policy, designs_full, task, preset: Preset, workers: int, label: str) -> np.ndarray:
+    """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
+    count: a lane's trajectory is the same in any world or worker, and learned policies run row by row)."""
+    w = max(1, min(workers, len(designs_full)))
+    return ballu.score(policy, designs_full, task, episodes=preset.score_episodes, workers=w,
+                       progress=Throttled(label) if label else None)
+
+
+@dataclass
+class PolicyJ:
+    """J(theta) of one policy for every design (an e2e MLP / MoE, or the baseline design's policy)."""
+    policy: object
+    space: ballu.DesignSpace
+    task: str
+    preset: Preset
+    workers: int = 1
+    label: str = ""
+
+    def __call__(self, theta):
+        out = score_policy(self.policy, self.space.full(theta), self.task, self.preset, self.workers, self.label)
+        return float(out[0]) if np.ndim(theta) == 1 else out
+
+
+def ges_J(run_dir: str, task: str, space: ballu.DesignSpace, preset: Preset, workers: int = 1,
+          label: str = "") -> ges.RoutedEvaluator:
+    """J(theta) of GES (paper Sec. IV-C): the density router (eq. 10) hands each design to the specialist whose
+    Gaussian is densest there, and that specialist plays it."""
+    return ges.routed_evaluator(ges.load_result(run_dir), ScoreSpecialist(task, space, preset.score_episodes,
+                                                                          workers, label))
+
+
+def ges_specialist(run_dir: str, theta):
+    """The policy of the specialist the router (eq. 10) picks for one design theta (the space's coordinates)."""
+    res = ges.load_result(run_dir)
+    return ppo.load_policy(res.ckpt[int(res.route(theta)[0])])
+
+
+def load_policy(run: Run, method: str, task: str, sp: str):
+    """The policy of a single-policy method ('baseline' = the baseline design's own policy, 'mlp', 'moe')."""
+    if method == "baseline":
+        return ppo.load_policy(run.path("policies", f"baseline-{task}", "policy.pt"))
+    return ppo.load_policy(run.path("policies", f"{method}-{task}-{sp}", "policy.pt"))
+
+
+def method_J(run: Run, method: str, task: str, sp: str, label: str = ""):
+    """J(theta) of a method on designs of its task/space: (d,) -> float, (n, d) -> (n,)."""
+    space = space_of(run.preset, task, sp)
+    if method == "ges":
+        return ges_J(run.path("ges", ges_name(task, sp, run.K(sp), "fps+lloyd")), task, space, run.preset,
+                     run.workers, label)
+    return PolicyJ(load_policy(run, method, task, sp), space, task, run.preset, run.workers, label)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -258,39 +364,6 @@ def code_hash() -> str:
     return h.hexdigest()[:16]
 
 
-# ----------------------------------------------------------------------------------------------------------
-# 4. Policies: PPO training, GES specialists, GES as one routed policy
-# ----------------------------------------------------------------------------------------------------------
-def space_of(preset: Preset, task: str, sp: str) -> ges.DesignSpace:
-    """D2 = (GCR, SPCF) with l_f = l_t = 0.45; D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B)."""
-    return (ges.d2 if sp == "d2" else ges.d3)(task, preset.ranges)
-
-
-def ppo_config(preset: Preset) -> ppo.PPOConfig:
-    return ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout,
-                         init_action_mean=preset.ppo_init_action_mean)
-
-
-@dataclass
-class UniformIn:
-    """Uniform designs over a design space, physical units (e2e baselines: design randomisation)."""
-    space: ges.DesignSpace
-
-    def __call__(self, rng, n):
-        return self.space.sample_uniform(rng, n)
-
-
-@dataclass
-class FullDesigns:
-    """Maps a sampler over a design space (D2/D3 coordinates) to ballu's full (l_f, l_t, gcr, spcf) 4-vectors.
-    Top-level and picklable: BALLU's worker processes receive it."""
-    space: ges.DesignSpace
-    inner: object
-
-    def __call__(self, rng, n):
-        return self.space.full(self.inner(rng, n))
-
-
 def trim_log(csv_path: str, steps: int) -> None:
     """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
     resumed run's learning curve has no duplicated stretch."""
@@ -303,109 +376,8 @@ def trim_log(csv_path: str, steps: int) -> None:
         csv.writer(fh).writerows(keep)
 
 
-def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
-                 workers: int, label: str) -> str:
-    """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
-
-    A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates): that continuation
-    restarts episodes, so it is close to, not bit-identical with, an uninterrupted run."""
-    os.makedirs(folder, exist_ok=True)
-    ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
-    have = ppo.load_checkpoint(ckpt)["steps"] if os.path.exists(ckpt) else 0
-    if have >= steps:
-        return ckpt
-    if have:
-        trim_log(log, have)
-    elif os.path.exists(log):
-        os.remove(log)
-    cfg = ppo_config(preset)   # few lanes stay in-process: a spawned worker costs ~2 s of imports
-    env = ballu.make_env(cfg.num_envs, max(1, min(workers, cfg.num_envs // 8)), ballu.BalluConfig(task=task))
-    try:
-        ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, log_csv=log, progress=Throttled(label))
-    finally:
-        env.close()
-    return ckpt
-
-
-@dataclass
-class TrainSpecialist:
-    """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
-
-    Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
-    and step count carry over) and trains to (r + 1) * round_steps control steps. A repeated (interrupted)
-    round first deletes its partial output, so it is identical to an uninterrupted one."""
-    task: str
-    space: ges.DesignSpace
-    round_steps: int
-    preset: Preset
-    warm_ckpt: str = ""   # Preset.ges_warm_start: round 0 starts from this policy (the cell's e2e MLP)
-
-    def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
-        log = ckpt_out + ".csv"
-        for f in (ckpt_out, log):
-            if os.path.exists(f):
-                os.remove(f)
-        cfg = ppo_config(self.preset)
-        base = ppo.load_checkpoint(self.warm_ckpt)["steps"] if self.warm_ckpt else 0
-        env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
-        try:
-            ppo.train("mlp", env, FullDesigns(self.space, sampler), base + (round + 1) * self.round_steps,
-                      ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed, log_csv=log,
-                      progress=None)
-        finally:
-            env.close()
-
-
-@dataclass
-class ScoreSpecialist:
-    """GES score_fn: the paper's J of specialist k's deterministic policy on each design (one lane each)."""
-    task: str
-    space: ges.DesignSpace
-    episodes: int
-
-    def __call__(self, k, ckpt, designs):
-        return ballu.score(ppo.load_policy(ckpt), self.space.full(designs), self.task, episodes=self.episodes,
-                           workers=1)
-
-
-class RoutedPolicy:
-    """GES as one policy: each lane is played by the specialist whose Gaussian is densest at the lane's design
-    (the density router, paper eq. 10). The design is read back from the observation (its last 4 entries),
-    so ballu.score can score GES on a batch of designs exactly like any other policy: same lanes, same
-    call, one lane per design."""
-
-    def __init__(self, run_dir: str):
-        res = ges.load_result(run_dir)
-        if any(c is None for c in res.ckpt):
-            raise ValueError(f"GES run {run_dir} has no trained specialists yet")
-        self.space, self.mu, self.sigma = res.space, res.mu_unit, res.sigma_unit
-        self.experts = [ppo.load_policy(c) for c in res.ckpt]
-        cols = {"l_f": 0, "l_t": 1, "gcr": 2, "spcf": 3, "l": 0}
-        self.cols = [cols[n] for n in self.space.names]
-
-    def route_designs(self, theta) -> np.ndarray:
-        """Specialist index for designs in the space's coordinates (n, d)."""
-        return ges.route(self.space.to_unit(np.atleast_2d(theta)), self.mu, self.sigma)
-
-    def __call__(self, obs):
-        full = obs[:, -4:].astype(float) * (ballu.TABLE_I_HIGH - ballu.TABLE_I_LOW) + ballu.TABLE_I_LOW
-        ks = self.route_designs(full[:, self.cols])
-        act = np.zeros((len(obs), ballu.ACT_DIM))
-        for k in np.unique(ks):
-            act[ks == k] = self.experts[k](obs[ks == k])
-        return act
-
-
-def score_policy(policy, designs_full, task, preset: Preset, workers: int, label: str) -> np.ndarray:
-    """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
-    count: a lane's trajectory is the same in any world or worker, and learned policies run row by row)."""
-    w = max(1, min(workers, len(designs_full)))
-    return ballu.score(policy, designs_full, task, episodes=preset.score_episodes, workers=w,
-                       progress=Throttled(label))
-
-
 # ----------------------------------------------------------------------------------------------------------
-# 5. Stages
+# 4. Stages (each a function; each name usable with --only)
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class Run:
@@ -455,7 +427,7 @@ def baseline_jobs(run: Run) -> list:
         for s in SPACES:
             space = space_of(run.preset, t, s)
             for kind in ("mlp", "moe"):
-                jobs.append((f"{kind}-{t}-{s}", kind, t, FullDesigns(space, UniformIn(space))))
+                jobs.append((f"{kind}-{t}-{s}", kind, t, ballu.UniformDesign(space)))
     return jobs
 
 
@@ -544,15 +516,6 @@ def stage_ges(run: Run) -> dict:
 
 
 # --- Table II -----------------------------------------------------------------------------------------------
-def load_method(run: Run, method: str, task: str, sp: str):
-    """The policy callable of a method for a task/space ('baseline' = the baseline design's own policy)."""
-    if method == "baseline":
-        return ppo.load_policy(run.path("policies", f"baseline-{task}", "policy.pt"))
-    if method in ("mlp", "moe"):
-        return ppo.load_policy(run.path("policies", f"{method}-{task}-{sp}", "policy.pt"))
-    return RoutedPolicy(run.path("ges", ges_name(task, sp, run.K(sp), "fps+lloyd")))
-
-
 def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = None) -> str:
     """Name of a score set; a GES score set is named by its GES run, so Table II, Table III (FPS + Lloyd) and
     Fig. 7 (K = K_d2) share the main obstacle D2 run's scores instead of scoring it three times."""
@@ -561,12 +524,12 @@ def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = N
     return f"test-{task}-{sp}-ges-{ges_run or ges_name(task, sp, run.K(sp), 'fps+lloyd')}"
 
 
-def cached_scores(run: Run, key: str, make_policy, designs_full, task) -> np.ndarray:
-    """Score a set of designs once; the scores are kept in scores/<key>.json (a resumable unit)."""
+def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
+    """Score a set of designs once (`compute()` -> scores); kept in scores/<key>.json (a resumable unit)."""
     path = run.path("scores", f"{key}.json")
     if os.path.exists(path):
         return np.array(read_json(path)["scores"])
-    s = score_policy(make_policy(), designs_full, task, run.preset, run.workers, key)
+    s = np.asarray(compute(), dtype=float)
     write_json(path, {"scores": s.tolist(), "designs": np.asarray(designs_full).tolist()})
     kill_hook(f"scores:{key}")
     return s
@@ -593,11 +556,8 @@ def tpe_search(spec: SearchSpec) -> dict:
     in the study file, so the cost stage can add them up."""
     run = Run(spec.out, spec.preset, spec.seed, 1)
     space = space_of(spec.preset, spec.task, spec.sp)
-    policy = load_method(run, spec.method, spec.task, spec.sp)
+    J = method_J(run, spec.method, spec.task, spec.sp)
     n = spec.preset.tpe_trials
-
-    def J(theta):
-        return float(ballu.score(policy, space.full(theta), spec.task, episodes=spec.preset.score_episodes)[0])
 
     def after(study, trial):
         secs = [t.seconds or 0.0 for t in study.trials]
@@ -634,13 +594,13 @@ def stage_table2(run: Run) -> dict:
     units = [(t, s, m) for t in TASKS for s in SPACES for m in METHODS]
     prog = Progress("score sets", len(units) + len(TASKS), every=0)
     for i, t in enumerate(TASKS):   # the "baseline design" column: the baseline policy at the baseline design
-        s = cached_scores(run, f"design-{t}", lambda: load_method(run, "baseline", t, "d2"),
-                          ballu.BASELINE[None], t)
+        s = cached_scores(run, f"design-{t}", lambda: score_policy(load_policy(run, "baseline", t, "d2"),
+                          ballu.BASELINE[None], t, run.preset, 1, f"design-{t}"), ballu.BASELINE[None])
         out["design"][t] = float(s[0])
         prog(i + 1, f"baseline design {t}")
     for i, (t, s, m) in enumerate(units):
-        full = space_of(run.preset, t, s).full(run.test_designs(t, s))
-        sc = cached_scores(run, score_key(run, t, s, m), lambda: load_method(run, m, t, s), full, t)
+        theta, key = run.test_designs(t, s), score_key(run, t, s, m)
+        sc = cached_scores(run, key, lambda: method_J(run, m, t, s, key)(theta), space_of(run.preset, t, s).full(theta))
         out["cells"].setdefault(f"{t}-{s}", {})[m] = {"mean": float(sc.mean()), "std": float(sc.std()),
                                                       "min": float(sc.min()), "max": float(sc.max()),
                                                       "scores": sc.tolist()}
@@ -671,9 +631,10 @@ def write_test_csv(run: Run, t2: dict) -> None:
 # --- Table III and K sensitivity ----------------------------------------------------------------------------
 def ges_test_scores(run: Run, name: str) -> np.ndarray:
     """A GES run's routed score on the obstacle D2 test designs (shared with Table II)."""
-    full = space_of(run.preset, "obstacle", "d2").full(run.test_designs("obstacle", "d2"))
-    return cached_scores(run, score_key(run, "obstacle", "d2", "ges", name),
-                         lambda: RoutedPolicy(run.path("ges", name)), full, "obstacle")
+    space, theta = space_of(run.preset, "obstacle", "d2"), run.test_designs("obstacle", "d2")
+    key = score_key(run, "obstacle", "d2", "ges", name)
+    return cached_scores(run, key, lambda: ges_J(run.path("ges", name), "obstacle", space, run.preset, run.workers,
+                                                 key)(theta), space.full(theta))
 
 
 def summary(s: np.ndarray) -> dict:
@@ -706,7 +667,7 @@ class PerDesignBO:
     trial resumes its own training."""
     run: Run
     task: str
-    space: ges.DesignSpace
+    space: ballu.DesignSpace
 
     def __call__(self, theta):
         full = self.space.full(theta)
@@ -714,7 +675,7 @@ class PerDesignBO:
         ckpt = train_policy(self.run.path("policies", "bo", name), "mlp", self.task, ballu.FixedDesign(full[0]),
                             self.run.preset.ppo_steps, self.run.preset, derive_seed(self.run.seed, "bo", name),
                             self.run.workers, f"bo {name}")
-        return float(ballu.score(ppo.load_policy(ckpt), full, self.task, episodes=self.run.preset.score_episodes)[0])
+        return PolicyJ(ppo.load_policy(ckpt), self.space, self.task, self.run.preset)(theta)
 
 
 def stage_cost(run: Run) -> dict:
@@ -752,7 +713,9 @@ def stage_cost(run: Run) -> dict:
             "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"]}
 
 
-# --- figures ------------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------------------------------------
+# 5. Figures
+# ----------------------------------------------------------------------------------------------------------
 def _plt():
     import matplotlib
     matplotlib.use("Agg")
@@ -785,11 +748,11 @@ def fig_distributions(run: Run, t2: dict, path: str) -> str:
     return path
 
 
-def distinct_designs(space: ges.DesignSpace, n: int, seed: int) -> np.ndarray:
+def distinct_designs(space: ballu.DesignSpace, n: int, seed: int) -> np.ndarray:
     """n designs from distinct regions: farthest point sampling on a uniform pool (as GES's own init)."""
     rng = np.random.default_rng(seed)
     pts = ges.farthest_point_sampling(rng.random((2000, space.d)), n, rng)
-    return space.from_unit(pts[np.lexsort(pts.T[::-1])])
+    return ges.Box.of(space).from_unit(pts[np.lexsort(pts.T[::-1])])
 
 
 def fig_experts(run: Run, path: str) -> tuple:
@@ -800,10 +763,10 @@ def fig_experts(run: Run, path: str) -> tuple:
     space = space_of(run.preset, t, s)
     theta = distinct_designs(space, 10, derive_seed(run.seed, "fig4"))
     full = space.full(theta)
-    gate = load_method(run, "moe", t, s).gate_weights(ballu.normalise_design(full).astype(np.float32))
-    routed = load_method(run, "ges", t, s)
-    ks = routed.route_designs(theta)
-    hard = np.eye(len(routed.experts))[ks]
+    gate = load_policy(run, "moe", t, s).gate_weights(ballu.normalise_design(full).astype(np.float32))
+    res = ges.load_result(run.path("ges", ges_name(t, s, run.K(s), "fps+lloyd")))
+    ks = res.route(theta)
+    hard = np.eye(len(res.ckpt))[ks]
     ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4), layout="constrained")
     labels = [" ".join(f"{v:.3g}" for v in row) for row in theta]
@@ -825,12 +788,14 @@ def fig_experts(run: Run, path: str) -> tuple:
 
 
 def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) -> np.ndarray:
-    """Left/right toe z over one episode (steps, 2): a 1-lane BalluEnv, toe tips from the env's own state."""
-    env = ballu.BalluEnv(1, ballu.BalluConfig(task=task), curriculum=False)
+    """Left/right toe z over one episode (steps, 2): a 1-lane BalluEnv, toe tips from the env's own state. The
+    time limit is one step longer than the episode, so the last sample is not taken after an automatic reset."""
+    steps = ballu.BalluConfig().episode_steps
+    env = ballu.BalluEnv(1, ballu.BalluConfig(task=task, episode_steps=steps + 1), curriculum=False)
     try:
         obs, _ = env.reset(seed=0, options={"designs": design_full, "levels": level})
         z = []
-        for _ in range(env.cfg.episode_steps):
+        for _ in range(steps):
             obs, *_ = env.step(policy(obs))
             z.append(env._read_state()[4][0, :, 2])
     finally:
@@ -845,10 +810,11 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
     space = space_of(run.preset, "obstacle", "d2")
     peak = t2["peaks"]["obstacle-d2-ges"]["peak_design"]
     full = space.full([peak[n] for n in space.names])
-    routed = load_method(run, "ges", "obstacle", "d2")
+    experts = [ppo.load_policy(c) for c in ges.load_result(run.path("ges", ges_name("obstacle", "d2", run.K("d2"),
+                                                                                    "fps+lloyd"))).ckpt]
     fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     dt = ballu.BalluConfig().control_dt
-    for k, expert in enumerate(routed.experts):
+    for k, expert in enumerate(experts):
         z = toe_heights(expert, full)
         tt = np.arange(len(z)) * dt
         for side in range(2):
@@ -858,7 +824,7 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
         axes[side].set_ylabel(f"{name} toe z [cm]")
     axes[1].set_xlabel("time [s]")
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"Fig. 5: toe heights of {len(routed.experts)} GES specialists on design "
+    fig.suptitle(f"Fig. 5: toe heights of {len(experts)} GES specialists on design "
                  f"{np.round(full[0], 4).tolist()} facing a 30 cm obstacle (dashed)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -909,9 +875,9 @@ def fig_sensitivity(run: Run, t2: dict, path: str) -> str:
 
 
 def level_of(task: str, score: float) -> int:
-    """Invert ballu.level_score: the curriculum level a score J stands for."""
-    h = score / 100.0 if task == "obstacle" else 1.5 * math.tan(math.radians(score))
-    return int(np.clip(round((h - 0.001) / (0.01 if task == "obstacle" else 0.02)), 0, ballu.MAX_LEVEL))
+    """Invert ballu.level_score: the curriculum level a score J stands for (the nearest one)."""
+    levels = np.arange(ballu.MAX_LEVEL + 1)
+    return int(levels[np.argmin(np.abs(ballu.level_score(task, levels) - score))])
 
 
 def read_log(path: str) -> dict:
@@ -970,9 +936,10 @@ def stage_figures(run: Run) -> dict:
     for t in TASKS:   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level
         s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
         pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
-        full = space.full([pk["peak_design"][n] for n in space.names])[0]
-        figs[f"fig1-{t}"] = ballu.motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), load_method(run, "ges", t, s),
-                                               t, level_of(t, pk["peak"]), full)
+        theta = [pk["peak_design"][n] for n in space.names]
+        policy = ges_specialist(run.path("ges", ges_name(t, s, run.K(s), "fps+lloyd")), theta)
+        figs[f"fig1-{t}"] = ballu.motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
+                                               level_of(t, pk["peak"]), space.full(theta)[0])
     cdir = os.path.join(fdir, "curves")
     os.makedirs(cdir, exist_ok=True)
     for t in TASKS:
@@ -1000,8 +967,40 @@ STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. REPORT.md and results.json
+# 6. REPORT.md and results.json: our numbers beside the paper's
 # ----------------------------------------------------------------------------------------------------------
+# --- the paper's numbers (quoted from paper/ges_paper.tex; "None" = the paper gives no number) ---
+# Table I "BALLU morphology parameters": (lower, upper, baseline)
+PAPER_TABLE1 = {"l_f": (0.25, 0.55, 0.45), "l_t": (0.25, 0.55, 0.45), "gcr": (0.72, 0.90, 0.70),
+                "spcf": (0.001, 0.100, 0.002)}
+# Table II "Mean Simulation Performance": baseline design, e2e MLP, e2e MoE, GES (cm / degrees)
+PAPER_TABLE2 = {("obstacle", "d2"): {"design": 14.2, "mlp": 29.4, "moe": 34.0, "ges": 36.9},
+                ("obstacle", "d3"): {"design": 14.2, "mlp": 24.5, "moe": 21.2, "ges": 29.1},
+                ("ramp", "d2"): {"design": 25.1, "mlp": 27.9, "moe": 28.4, "ges": 31.4},
+                ("ramp", "d3"): {"design": 25.1, "mlp": 28.3, "moe": 27.9, "ges": 29.7}}
+# Sec. V-B text: peak scores found by the design search ("GES finds designs that clear a 54 cm obstacle,
+# versus 38 cm for e2e MLP and 52 cm for e2e MoE", ...); the ramp 3D peaks are given only as a gain (~8 %).
+PAPER_PEAK = {("obstacle", "d2"): {"mlp": 38.0, "moe": 52.0, "ges": 54.0},
+              ("obstacle", "d3"): {"mlp": 41.0, "moe": None, "ges": 54.0},
+              ("ramp", "d2"): {"mlp": 32.61, "moe": 32.61, "ges": 36.25},
+              ("ramp", "d3"): {"mlp": None, "moe": None, "ges": None}}
+# Sec. V-B/V-D text: the GES-optimised designs (GCR 0.88, SPCF 0.008 obstacle D2; leg 45.58 cm obstacle D3;
+# leg 31.45 cm ramp D3)
+PAPER_PEAK_DESIGN = {("obstacle", "d2"): "gcr=0.88 spcf=0.008", ("obstacle", "d3"): "l=0.4558",
+                     ("ramp", "d2"): None, ("ramp", "d3"): "l=0.3145"}
+# Sec. V-B text: head-to-head win rates of GES over 1000 test designs (%)
+PAPER_WINS = {("obstacle", "d2"): {"mlp": 94, "moe": 72}, ("obstacle", "d3"): {"mlp": 68, "moe": 76},
+              ("ramp", "d2"): {"mlp": 81, "moe": 78}, ("ramp", "d3"): {"mlp": 75, "moe": 86}}
+# Table III "Impact of initialization strategy" (K = 3, obstacle, D2): mean, min, max in cm
+PAPER_TABLE3 = {"grid": (29.7, 22, 43), "random": (31.5, 24, 45), "fps": (34.5, 22, 52),
+                "fps+lloyd": (35.2, 24, 52)}
+# Fig. 7: no numbers in the text, only "Performance peaks at K = 3 and degrades for larger K"
+PAPER_KSENS_PEAK_K = 3
+# Sec. V-D "Computational Cost": ~100 h per-design BO vs ~63 h GES on the 3D space, a 37 % reduction;
+# Stage 1 for K = 6 took 48 h.
+PAPER_COST = {"bo_h": 100.0, "ges_h": 63.0, "reduction_pct": 37.0, "stage1_h": 48.0}
+
+
 def cell(ours, paper, fmt="{:.1f}") -> str:
     """'ours (paper)'; a missing number is '-'."""
     o = "-" if ours is None else fmt.format(ours)
@@ -1009,114 +1008,141 @@ def cell(ours, paper, fmt="{:.1f}") -> str:
     return f"{o} ({p})"
 
 
+def md_table(header: list, rows: list) -> list:
+    """A markdown table as lines: the header, its rule, one line per row, and a blank line."""
+    line = lambda values: "| " + " | ".join(str(v) for v in values) + " |"   # noqa: E731
+    return [line(header), "|" + "---|" * len(header)] + [line(r) for r in rows] + [""]
+
+
 def stage_result(run: Run, name: str):
     path = run.path("stages", f"{name}.json")
     return read_json(path)["result"] if os.path.exists(path) else None
 
 
+def report_header(run: Run, manifest: dict) -> list:
+    p = run.preset
+    return [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
+            "Every cell is **ours (paper)**. Paper numbers are constants in run_all.py quoted from "
+            "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
+            "budgets below). '-' = not measured yet / not given by the paper.", "",
+            f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
+            f"code hash {manifest['code_hash']}",
+            f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
+            f"per update, initial mean action {p.ppo_init_action_mean}); GES {p.ges_round_steps:,} steps per "
+            f"specialist per round, <= {p.ges_max_rounds} rounds, "
+            + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
+               if p.ges_warm_start else "") +
+            f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
+            f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
+            f"trials ({p.tpe_startup} random first); episodes per score J: {p.score_episodes} (paper: 20); "
+            f"design bounds: {p.ranges}", ""]
+
+
+def report_table1(table1: dict) -> list:
+    rows = []
+    for name, (low, high, base) in table1["rows"].items():
+        paper_low, paper_high, paper_base = PAPER_TABLE1[name]
+        rows.append([name, cell(low, paper_low, "{:g}"), cell(high, paper_high, "{:g}"),
+                     cell(base, paper_base, "{:g}")])
+    return ["## Table I: design space and baseline design", ""] + md_table(
+        ["parameter", "lower", "upper", "baseline"], rows)
+
+
+def report_table2(table2: dict, preset: Preset) -> list:
+    means = []
+    for t in TASKS:
+        for s in SPACES:
+            scores, paper = table2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
+            means.append([t, s.upper(), cell(table2["design"][t], paper["design"]),
+                          cell(scores["baseline"]["mean"], None), cell(scores["mlp"]["mean"], paper["mlp"]),
+                          cell(scores["moe"]["mean"], paper["moe"]), cell(scores["ges"]["mean"], paper["ges"])])
+    peaks = []
+    for t in TASKS:
+        for s in SPACES:
+            for m in ("mlp", "moe", "ges"):
+                peak = table2["peaks"][f"{t}-{s}-{m}"]
+                design = " ".join(f"{k}={v:.4g}" for k, v in peak["peak_design"].items())
+                paper_design = PAPER_PEAK_DESIGN[(t, s)] if m == "ges" else None
+                peaks.append([t, s.upper(), METHOD_NAMES[m], cell(peak["peak"], PAPER_PEAK[(t, s)][m]), design,
+                              paper_design or "-"])
+    wins_rows = []
+    for t in TASKS:
+        for s in SPACES:
+            w = table2["cells"][f"{t}-{s}"]["ges_wins"]
+            wins_rows.append([t, s.upper()] + [
+                f"{cell(w[m]['win_pct'], PAPER_WINS[(t, s)].get(m), '{:.0f}')} [ties {w[m]['tie_pct']:.0f}]"
+                for m in ("baseline", "mlp", "moe")])
+    return ([f"## Table II: mean score J over {preset.n_test} uniform test designs (cm obstacle, deg ramp)", ""]
+            + md_table(["task", "space", "baseline design", "baseline policy", "e2e MLP", "e2e MoE", "GES"], means)
+            + ["'baseline design' = the baseline design's own policy at the baseline design (1 design); "
+               "'baseline policy' = that policy on the test designs (not in the paper).", "",
+               f"### Peaks found by TPE ({preset.tpe_trials} trials maximising each method's J)", ""]
+            + md_table(["task", "space", "method", "peak J", "peak design", "paper's peak design"], peaks)
+            + ["### Head-to-head: % of test designs where GES scores higher; cells: ours (paper) [ties, ours]", ""]
+            + md_table(["task", "space", "vs baseline policy", "vs e2e MLP", "vs e2e MoE"], wins_rows))
+
+
+def report_table3(table3: dict, preset: Preset) -> list:
+    rows = []
+    for init, r in table3.items():
+        paper_mean, paper_min, paper_max = PAPER_TABLE3.get(init, (None, None, None))
+        rows.append([init, cell(r["mean"], paper_mean), cell(r["min"], paper_min, "{:.0f}"),
+                     cell(r["max"], paper_max, "{:.0f}"), r["rounds"], f"{r['coverage']:.1%}"])
+    return ([f"## Table III: GES initialisation (K = {preset.K_d2}, obstacle, D2, {preset.n_test} test designs, cm)",
+             ""] + md_table(["init", "mean", "min", "max", "GES rounds", "final coverage"], rows))
+
+
+def report_ksens(ksens: dict) -> list:
+    best = max(ksens, key=lambda k: ksens[k]["mean"])
+    rows = [[K, f"{r['mean']:.1f}", f"{r['std']:.1f}", f"{r['min']:.0f}", f"{r['max']:.0f}", r["rounds"],
+             f"{r['coverage']:.1%}"] for K, r in ksens.items()]
+    return (["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
+             f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", ""]
+            + md_table(["K", "mean", "std", "min", "max", "GES rounds", "final coverage"], rows))
+
+
+def report_ges_runs(ges_runs: dict) -> list:
+    return ["## GES stage 1 runs", ""] + md_table(
+        ["run", "rounds", "final coverage"], [[n, r["rounds"], f"{r['coverage']:.1%}"] for n, r in ges_runs.items()])
+
+
+def report_cost(cost: dict) -> list:
+    extrapolated = (f" (per-design BO: {cost['bo_trials_run']} trials measured, extrapolated to {cost['trials']})"
+                    if cost["extrapolated"] else "")
+    rows = [["per-design BO wall time", f"{cost['bo_s']:.0f} s", f"{PAPER_COST['bo_h']:.0f} h"],
+            ["GES co-design wall time (warm-start e2e MLP + stage 1 + TPE with router)",
+             f"{cost['ges_s']:.0f} s ({cost.get('ges_warm_start_s', 0):.0f} + {cost['ges_stage1_s']:.0f} + "
+             f"{cost['ges_tpe_s']:.0f})", f"{PAPER_COST['ges_h']:.0f} h (no warm start)"],
+            ["reduction of wall time", f"{cost['reduction_pct']:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"],
+            ["best J found: per-design BO / GES", f"{cost['bo_peak']:.1f} / {cost['ges_peak']:.1f}", "-"]]
+    return ([f"## Computational cost ({cost['task']}, {cost['space'].upper()}, {cost['trials']} TPE trials, this "
+             f"machine, wall time){extrapolated}", ""] + md_table(["", "ours", "paper"], rows))
+
+
+def report_figures(figures: dict) -> list:
+    return (["## Figures", "", f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
+             f"collapse; paper: 'nearly equal weight'): {figures['moe_gate_entropy']:.2f}; GES: 0 (hard).", ""]
+            + [f"- {k}: [{v}]({v})" for k, v in figures["files"].items()] + [""])
+
+
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
-    p, R = run.preset, {n: stage_result(run, n) for n in STAGES}
-    times = read_json(run.path("stage_seconds.json")) if os.path.exists(run.path("stage_seconds.json")) else {}
-    L = [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
-         "Every cell is **ours (paper)**. Paper numbers are constants in run_all.py quoted from "
-         "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
-         "budgets below). '-' = not measured yet / not given by the paper.", "",
-         f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
-         f"code hash {manifest['code_hash']}",
-         f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps per "
-         f"update, initial mean action {p.ppo_init_action_mean}); GES {p.ges_round_steps:,} steps per "
-         f"specialist per round, <= {p.ges_max_rounds} rounds, "
-         + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
-            if p.ges_warm_start else "") +
-         f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
-         f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE trials "
-         f"({p.tpe_startup} random first); episodes per score J: {p.score_episodes} (paper: 20); "
-         f"design bounds: {p.ranges}", ""]
-    if R["table1"]:
-        L += ["## Table I: design space and baseline design", "",
-              "| parameter | lower | upper | baseline |", "|---|---|---|---|"]
-        for n, (lo, hi, b) in R["table1"]["rows"].items():
-            pl, ph, pb = PAPER_TABLE1[n]
-            L.append(f"| {n} | {cell(lo, pl, '{:g}')} | {cell(hi, ph, '{:g}')} | {cell(b, pb, '{:g}')} |")
-        L.append("")
-    t2 = R["table2"]
-    if t2:
-        L += [f"## Table II: mean score J over {p.n_test} uniform test designs (cm obstacle, deg ramp)", "",
-              "| task | space | baseline design | baseline policy | e2e MLP | e2e MoE | GES |",
-              "|---|---|---|---|---|---|---|"]
-        for t in TASKS:
-            for s in SPACES:
-                c, pp = t2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
-                L.append(f"| {t} | {s.upper()} | {cell(t2['design'][t], pp['design'])} | "
-                         f"{cell(c['baseline']['mean'], None)} | {cell(c['mlp']['mean'], pp['mlp'])} | "
-                         f"{cell(c['moe']['mean'], pp['moe'])} | {cell(c['ges']['mean'], pp['ges'])} |")
-        L += ["", "'baseline design' = the baseline design's own policy at the baseline design (1 design); "
-              "'baseline policy' = that policy on the test designs (not in the paper).", "",
-              f"### Peaks found by TPE ({p.tpe_trials} trials maximising each method's J)", "",
-              "| task | space | method | peak J | peak design | paper's peak design |", "|---|---|---|---|---|---|"]
-        for t in TASKS:
-            for s in SPACES:
-                for m in ("mlp", "moe", "ges"):
-                    pk = t2["peaks"][f"{t}-{s}-{m}"]
-                    des = " ".join(f"{k}={v:.4g}" for k, v in pk["peak_design"].items())
-                    pd = PAPER_PEAK_DESIGN[(t, s)] if m == "ges" else None
-                    L.append(f"| {t} | {s.upper()} | {METHOD_NAMES[m]} | {cell(pk['peak'], PAPER_PEAK[(t, s)][m])} "
-                             f"| {des} | {pd or '-'} |")
-        L += ["", "### Head-to-head: % of test designs where GES scores higher; cells: ours (paper) [ties, ours]", "",
-              "| task | space | vs baseline policy | vs e2e MLP | vs e2e MoE |", "|---|---|---|---|---|"]
-        for t in TASKS:
-            for s in SPACES:
-                w = t2["cells"][f"{t}-{s}"]["ges_wins"]
-                L.append(f"| {t} | {s.upper()} | " + " | ".join(
-                    f"{cell(w[m]['win_pct'], PAPER_WINS[(t, s)].get(m), '{:.0f}')} [ties {w[m]['tie_pct']:.0f}]"
-                    for m in ("baseline", "mlp", "moe")) + " |")
-        L.append("")
-    if R["table3"]:
-        L += [f"## Table III: GES initialisation (K = {p.K_d2}, obstacle, D2, {p.n_test} test designs, cm)", "",
-              "| init | mean | min | max | GES rounds | final coverage |", "|---|---|---|---|---|---|"]
-        for init, r in R["table3"].items():
-            pm = PAPER_TABLE3.get(init, (None, None, None))
-            L.append(f"| {init} | {cell(r['mean'], pm[0])} | {cell(r['min'], pm[1], '{:.0f}')} | "
-                     f"{cell(r['max'], pm[2], '{:.0f}')} | {r['rounds']} | {r['coverage']:.1%} |")
-        L.append("")
-    if R["ksens"]:
-        best = max(R["ksens"], key=lambda k: R["ksens"][k]["mean"])
-        L += ["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
-              f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", "",
-              "| K | mean | std | min | max | GES rounds | final coverage |", "|---|---|---|---|---|---|---|"]
-        for K, r in R["ksens"].items():
-            L.append(f"| {K} | {r['mean']:.1f} | {r['std']:.1f} | {r['min']:.0f} | {r['max']:.0f} | {r['rounds']} | "
-                     f"{r['coverage']:.1%} |")
-        L.append("")
-    if R["ges"]:
-        L += ["## GES stage 1 runs", "", "| run | rounds | final coverage |", "|---|---|---|"]
-        L += [f"| {n} | {r['rounds']} | {r['coverage']:.1%} |" for n, r in R["ges"].items()]
-        L.append("")
-    c = R["cost"]
-    if c:
-        ex = (f" (per-design BO: {c['bo_trials_run']} trials measured, extrapolated to {c['trials']})"
-              if c["extrapolated"] else "")
-        L += [f"## Computational cost ({c['task']}, {c['space'].upper()}, {c['trials']} TPE trials, this machine, "
-              f"wall time){ex}", "",
-              "| | ours | paper |", "|---|---|---|",
-              f"| per-design BO wall time | {c['bo_s']:.0f} s | {PAPER_COST['bo_h']:.0f} h |",
-              f"| GES co-design wall time (warm-start e2e MLP + stage 1 + TPE with router) | {c['ges_s']:.0f} s "
-              f"({c.get('ges_warm_start_s', 0):.0f} + {c['ges_stage1_s']:.0f} + {c['ges_tpe_s']:.0f}) "
-              f"| {PAPER_COST['ges_h']:.0f} h (no warm start) |",
-              f"| reduction of wall time | {c['reduction_pct']:.0f} % | {PAPER_COST['reduction_pct']:.0f} % |",
-              f"| best J found: per-design BO / GES | {c['bo_peak']:.1f} / {c['ges_peak']:.1f} | - |", ""]
-    if R["figures"]:
-        L += ["## Figures", "", f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
-              f"collapse; paper: 'nearly equal weight'): {R['figures']['moe_gate_entropy']:.2f}; GES: 0 (hard).", ""]
-        L += [f"- {k}: [{v}]({v})" for k, v in R["figures"]["files"].items()]
-        L.append("")
-    L += ["## Wall time per stage (all attempts)", "", "| stage | wall time |", "|---|---|"]
-    L += [f"| {n} | {times[n]:.0f} s |" for n in STAGES if n in times]
-    text = "\n".join(L) + "\n"
+    results = {name: stage_result(run, name) for name in STAGES}
+    times_path = run.path("stage_seconds.json")
+    times = read_json(times_path) if os.path.exists(times_path) else {}
+    sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
+                ("table3", lambda r: report_table3(r, run.preset)), ("ksens", report_ksens),
+                ("ges", report_ges_runs), ("cost", report_cost), ("figures", report_figures)]
+    lines = report_header(run, manifest)
+    for name, write in sections:
+        if results[name]:
+            lines += write(results[name])
+    lines += ["## Wall time per stage (all attempts)", ""] + md_table(
+        ["stage", "wall time"], [[n, f"{times[n]:.0f} s"] for n in STAGES if n in times])
+    text = "\n".join(lines).rstrip("\n") + "\n"
     with open(run.path("REPORT.md"), "w") as fh:
         fh.write(text)
-    write_json(run.path("results.json"), {"manifest": manifest, "stages": R, "stage_seconds": times})
+    write_json(run.path("results.json"), {"manifest": manifest, "stages": results, "stage_seconds": times})
     return text
 
 

@@ -2,22 +2,29 @@
 
 Run: pytest -q test_ges.py
 """
+import csv as csv_module
 import functools
 import json
 import math
 import os
 import pickle
+import re
+import subprocess
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 import pybullet
 import pytest
+import torch
 from scipy import stats
 from scipy.stats import multivariate_normal
 
 import ballu
 import ges
+import ppo
+import run_all
 from ballu import BASELINE, BalluConfig, BalluEnv
 from tpe import TPE, Parzen, TPEConfig, bandwidths, build_parzen, n_good, optimize, recency_weights
 
@@ -382,38 +389,320 @@ def test_capability_gaits_and_clearance_measure():
     assert out["peak_clearance"][0] < 0.02 and not out["blowup"][0]
 
 
-# ==========================================================================================================
-# ges.py: design spaces, initialisation, coverage, refit, router, the loop, resume, executors
-# ==========================================================================================================
-MC_SD = lambda p, n: math.sqrt(p * (1 - p) / n)  # noqa: E731  standard error of an MC fraction
+# --- design spaces (paper Table I, facts per-task ranges) ---
+D2_BOX = ges.Box(("gcr", "spcf"), (0.72, 0.001), (0.90, 0.100))             # D2's Table I bounds as a plain box
+D3_BOX = ges.Box(("gcr", "spcf", "l"), (0.72, 0.001, 0.25), (0.90, 0.100, 0.55))
 
 
-# =========================================================================================================
-# ges: design spaces (paper Table I, facts per-task ranges)
-# =========================================================================================================
-def test_ges_table_i_and_baseline():
-    assert ges.TABLE_I == {"l_f": (0.25, 0.55), "l_t": (0.25, 0.55), "gcr": (0.72, 0.90), "spcf": (0.001, 0.100)}
-    assert ges.BASELINE == {"l_f": 0.45, "l_t": 0.45, "gcr": 0.70, "spcf": 0.002}
+def test_table_i_baseline_and_box():
+    assert ballu.TABLE_I == {"l_f": (0.25, 0.55), "l_t": (0.25, 0.55), "gcr": (0.72, 0.90), "spcf": (0.001, 0.100)}
+    assert dict(zip(ballu.DESIGN_NAMES, BASELINE)) == {"l_f": 0.45, "l_t": 0.45, "gcr": 0.70, "spcf": 0.002}
     with pytest.raises(ValueError, match="gcr"):  # the baseline's GCR lies outside Table I (facts)
-        ges.d2().validate([ges.BASELINE["gcr"], ges.BASELINE["spcf"]])
+        ballu.d2().validate([BASELINE[2], BASELINE[3]])
+    assert ges.Box.of(ballu.d2()) == D2_BOX and ges.Box.of(ballu.d3()) == D3_BOX
 
 
-def test_ges_d2_d3_bounds_and_full():
-    s2, s3 = ges.d2(), ges.d3()
+def test_d2_d3_bounds_and_full():
+    s2, s3 = ballu.d2(), ballu.d3()
     assert s2.names == ("gcr", "spcf") and s2.lows == (0.72, 0.001) and s2.highs == (0.90, 0.100)
     assert s3.names == ("gcr", "spcf", "l") and s3.lows == (0.72, 0.001, 0.25) and s3.highs == (0.90, 0.1, 0.55)
     np.testing.assert_allclose(s2.full([0.8, 0.05]), [[0.45, 0.45, 0.8, 0.05]])
     np.testing.assert_allclose(s3.full([[0.8, 0.05, 0.3], [0.9, 0.1, 0.55]]),
                                [[0.3, 0.3, 0.8, 0.05], [0.55, 0.55, 0.9, 0.1]])
-    ob, ramp, ob3 = ges.d2("obstacle", "facts"), ges.d2("ramp", "facts"), ges.d3("obstacle", "facts")
+    ob, ramp, ob3 = ballu.d2("obstacle", "facts"), ballu.d2("ramp", "facts"), ballu.d3("obstacle", "facts")
     assert ob.lows == (0.75, 0.001) and ob.highs == (0.89, 0.010)
     assert ramp.lows == (0.725, 0.005) and ramp.highs == (0.89, 0.100)
     assert ob3.lows[2] == 0.20 and ob3.highs[2] == 0.48
-    assert ges.d2("ramp").lows == s2.lows  # a task alone keeps Table I bounds
+    assert ballu.d2("ramp").lows == s2.lows  # a task alone keeps Table I bounds
 
+
+# ==========================================================================================================
+# ppo.py: GAE against brute force, a toy env solved, checkpoints, MoE gate
+# ==========================================================================================================
+
+
+def brute_force_returns(rewards, values, dones, last_value, gamma, lam):
+    """lambda-returns by their definition: a weighted sum of n-step returns, cut at episode ends."""
+    T, N = rewards.shape
+    adv = np.zeros((T, N))
+    for n in range(N):
+        for t in range(T):
+            total, weight = 0.0, 1.0
+            for k in range(t, T):
+                nextv = last_value[n] if k == T - 1 else values[k + 1, n]
+                delta = rewards[k, n] + gamma * nextv * (1 - dones[k, n]) - values[k, n]
+                total += weight * delta
+                if dones[k, n]:
+                    break
+                weight *= gamma * lam
+            adv[t, n] = total
+    return adv
+
+
+def test_gae_equals_brute_force_with_terminations_and_truncations():
+    rng = np.random.default_rng(0)
+    T, N = 30, 5
+    r, v = rng.normal(size=(T, N)), rng.normal(size=(T, N))
+    dones = (rng.uniform(size=(T, N)) < 0.15).astype(float)   # truncations carry their bootstrap in r
+    last = rng.normal(size=N)
+    adv, ret = ppo.gae(r, v, dones, last, 0.99, 0.95)
+    np.testing.assert_allclose(adv, brute_force_returns(r, v, dones, last, 0.99, 0.95), atol=1e-10)
+    np.testing.assert_allclose(ret, adv + v)
+    # lambda = 1 without episode ends: the plain discounted return bootstrapped at the end
+    adv1, ret1 = ppo.gae(r, v, np.zeros((T, N)), last, 0.9, 1.0)
+    disc = [sum(0.9 ** (k - t) * r[k] for k in range(t, T)) + 0.9 ** (T - t) * last for t in range(T)]
+    np.testing.assert_allclose(ret1, np.array(disc), atol=1e-10)
+
+
+class PointMass:
+    """A batched toy env: a point on a line driven to the origin; reward -|x|; 40-step episodes."""
+
+    def __init__(self, num_envs=16):
+        self.num_envs, self.obs_dim, self.act_dim = num_envs, 2, 1
+
+    def reset(self, seed=None, options=None):
+        self.rng = np.random.default_rng(seed)
+        self.x, self.t = self.rng.uniform(-1, 1, self.num_envs), np.zeros(self.num_envs, int)
+        self.ret = np.zeros(self.num_envs)
+        return self._obs(), {"levels": np.zeros(self.num_envs)}
+
+    def _obs(self):
+        return np.stack([self.x, self.t / 40.0], 1).astype(np.float32)
+
+    def step(self, a):
+        self.x = np.clip(self.x + 0.1 * np.clip(a[:, 0], -1, 1), -2, 2)
+        self.t += 1
+        r = -np.abs(self.x)
+        self.ret += r
+        trunc = self.t >= 40
+        obs = self._obs()
+        info = {"final_obs": obs.copy(), "_final_obs": trunc, "episode_return": np.where(trunc, self.ret, np.nan),
+                "levels": np.zeros(self.num_envs)}
+        if trunc.any():
+            self.x[trunc] = self.rng.uniform(-1, 1, trunc.sum())
+            self.t[trunc], self.ret[trunc] = 0, 0
+            obs = self._obs()
+        return obs, r.astype(np.float32), np.zeros(self.num_envs, bool), trunc, info
+
+
+def point_mass_return(policy_fn, episodes=64):
+    env = PointMass(episodes)
+    obs, _ = env.reset(seed=99)
+    total = np.zeros(episodes)
+    for _ in range(40):
+        obs, r, *_ = env.step(policy_fn(obs))
+        total += r
+    return total.mean()
+
+
+def test_ppo_solves_a_point_mass(tmp_path):
+    """Random start |x| ~ U(0,1): a do-nothing policy scores about -20 per episode, the optimum about -2.8."""
+    cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4)
+    ck = str(tmp_path / "pm.pt")
+    ppo.train("mlp", PointMass(16), None, 40_000, ck, cfg, seed=0, progress=None,
+              log_csv=str(tmp_path / "pm.csv"))
+    pf = ppo.load_policy(ck)
+    zero = point_mass_return(lambda o: np.zeros((len(o), 1)))
+    learned = point_mass_return(pf)
+    assert zero < -15 and learned > -6, (zero, learned)
+    assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
+
+
+def test_checkpoint_round_trip_and_clear_errors(tmp_path):
+    cfg = ppo.PPOConfig(num_envs=8, num_steps=8, design_dim=1)   # the MoE gate reads the last obs entry
+    ck = str(tmp_path / "a.pt")
+    ppo.train("moe", PointMass(8), None, 64, ck, cfg, seed=1, progress=None)
+    obs = np.random.default_rng(0).normal(size=(5, 2)).astype(np.float32)
+    a1, a2 = ppo.load_policy(ck)(obs), ppo.load_policy(ck)(obs)
+    np.testing.assert_array_equal(a1, a2)
+    state = ppo.load_checkpoint(ck)
+    policy, norm = ppo.policy_from(state)
+    with torch.no_grad():
+        direct = policy.mean(torch.from_numpy(norm(obs))).numpy()
+    np.testing.assert_allclose(a1, direct, rtol=1e-6)
+    # resuming the finished run does nothing; more steps continue from its step count
+    assert ppo.train("moe", PointMass(8), None, 64, ck, cfg, progress=None)["resumed"]
+    assert ppo.train("moe", PointMass(8), None, 128, ck, cfg, progress=None)["steps"] == 128
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="corrupt"):
+        ppo.load_checkpoint(str(bad))
+    with pytest.raises(FileNotFoundError):
+        ppo.load_checkpoint(str(tmp_path / "missing.pt"))
+    with pytest.raises(ValueError, match="not a mlp policy"):
+        ppo.train("mlp", PointMass(8), None, 64, str(tmp_path / "b.pt"), cfg, init_ckpt=ck, progress=None)
+
+
+def test_train_start_level_is_one_level_or_a_uniform_spread(tmp_path):
+    """start_level=(low, high) starts each lane at its own level in [low, high]; an int starts all at it."""
+    seen = []
+
+    class Recording(PointMass):
+        def reset(self, seed=None, options=None):
+            seen.append(np.asarray(options["levels"]).copy())
+            return super().reset(seed=seed, options=options)
+
+    cfg = ppo.PPOConfig(num_envs=64, num_steps=4)
+    ppo.train("mlp", Recording(64), None, 256, str(tmp_path / "a.pt"), cfg, start_level=(3, 9), progress=None)
+    ppo.train("mlp", Recording(64), None, 256, str(tmp_path / "b.pt"), cfg, start_level=5, progress=None)
+    assert seen[0].min() >= 3 and seen[0].max() <= 9 and len(set(seen[0].tolist())) >= 5
+    assert (seen[1] == 5).all()
+
+
+class JoinedPointMass:
+    """PointMass lanes in independent parts (each with its global lane ids), stepped all at once here."""
+
+    def __init__(self, sizes=(3, 5)):
+        self.parts = np.split(np.arange(sum(sizes)), np.cumsum(sizes)[:-1])
+        self.subs = [PointMass(n) for n in sizes]
+        for sub, ids in zip(self.subs, self.parts):
+            sub.lane_ids = ids
+        self.num_envs, self.obs_dim, self.act_dim = sum(sizes), 2, 1
+
+    def reset(self, seed=None, options=None):
+        obs = [s.reset(seed=seed + i)[0] for i, s in enumerate(self.subs)]
+        return np.concatenate(obs), {"levels": np.zeros(self.num_envs)}
+
+    def step(self, a):
+        outs = [s.step(a[ids]) for s, ids in zip(self.subs, self.parts)]
+        info = {key: np.concatenate([o[4][key] for o in outs]) for key in outs[0][4]}
+        return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (info,)
+
+
+class SplitPointMass(JoinedPointMass):
+    """The same lanes rolled out part by part, like ballu.VecBallu's worker processes (`run`)."""
+
+    def run(self, fn, args):
+        return [fn(sub, *a) for sub, a in zip(self.subs, args)]
+
+
+@pytest.mark.parametrize("text", ["10:5", "abc", "80", "-1", "3:", ":4"])
+def test_start_level_argument_errors_name_the_range(text):
+    import argparse
+    with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
+        ppo._levels_arg(text)
+    assert ppo._levels_arg("3:9") == (3, 9) and ppo._levels_arg("7") == 7 and ppo._levels_arg("5:5") == (5, 5)
+
+
+def test_rollout_split_over_workers_equals_one_process():
+    """Each worker rolling out its own lanes with a policy copy gives the buffers of one in-process rollout
+    (the noise is per lane), across episode ends (40-step episodes, 50 steps: time-limit bootstraps included)."""
+    cfg = ppo.PPOConfig(num_envs=8, num_steps=50)
+    out = []
+    for env in (JoinedPointMass(), SplitPointMass()):
+        obs, _ = env.reset(seed=5)
+        torch.manual_seed(0)
+        pol, norm = ppo.make_policy("mlp", 2, 1, cfg), ppo.RunningNorm(2)
+        norm.update(obs)
+        out.append(ppo.rollout("mlp", pol, norm, env, obs, 50, cfg, noise_seed=3) + (norm,))
+    (b1, o1, _, r1, n1), (b2, o2, _, r2, n2) = out
+    for k in b1:
+        np.testing.assert_allclose(b1[k], b2[k], rtol=1e-5, atol=1e-6, err_msg=k)
+    np.testing.assert_allclose(o1, o2, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(sorted(r1), sorted(r2), rtol=1e-5)
+    np.testing.assert_allclose(n1.mean, n2.mean, rtol=1e-6)   # the normaliser saw every new observation
+    assert n1.count == pytest.approx(1e-4 + 8 * 51)
+    assert len(r1) == 8 and b1["done"].sum() == 8
+    # the stored log-probability (computed from the noise) is that of the stored action under N(mu, std)
+    logp = torch.distributions.Normal(torch.from_numpy(b1["mu"]), pol.log_std.exp().detach()).log_prob(
+        torch.from_numpy(b1["act"])).sum(-1).numpy()
+    np.testing.assert_allclose(b1["logp"], logp, rtol=1e-4, atol=1e-4)
+
+
+def test_vecballu_rollout_in_workers_equals_one_process():
+    """ppo's rollout with a policy copy in each of 2 VecBallu workers gives what one process gives."""
+    cfg, bcfg = ppo.PPOConfig(num_envs=4, num_steps=6), BalluConfig(task="ramp")
+    torch.manual_seed(0)
+    pol = ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, cfg)
+    out = []
+    for env in (ballu.make_env(4, 1, bcfg), ballu.VecBallu(4, 2, bcfg)):
+        try:
+            obs, _ = env.reset(seed=2, options={"design_sampler": ballu.FixedDesign(BASELINE)})
+            norm = ppo.RunningNorm(ballu.OBS_DIM)
+            norm.update(obs)
+            out.append(ppo.rollout("mlp", pol, norm, env, obs, 6, cfg, noise_seed=1))
+            if hasattr(env, "run"):
+                with pytest.raises(ValueError, match="one argument tuple per worker"):
+                    env.run(ppo._random_steps, [(1, 0.5, 0.5, 0)])
+        finally:
+            env.close()
+    for k in out[0][0]:
+        np.testing.assert_allclose(out[0][0][k], out[1][0][k], rtol=1e-4, atol=1e-5, err_msg=k)
+    np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-4, atol=1e-5)
+
+
+def test_score_in_workers_equals_score_in_one_process():
+    """ballu.score in the shared worker pool (each worker plays its designs with its own policy copy) gives
+    exactly the scores of one process, for a per-lane scripted gait and a learned policy; the pool is reused."""
+    cfg = replace(BalluConfig(), episode_steps=100)
+    rng = np.random.default_rng(4)
+    designs = np.column_stack([rng.uniform(0.3, 0.5, (6, 2)), rng.uniform(0.75, 0.9, 6), rng.uniform(0.001, 0.1, 6)])
+    torch.manual_seed(3)
+    learned = ppo.PolicyFn(ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, ppo.PPOConfig()),
+                           ppo.RunningNorm(ballu.OBS_DIM))
+    pump = ballu.PumpGait([6, 8, 10, 12, 14, 16], ["sync", "alternate"] * 3)
+    for policy in (pump, learned):
+        one, x1 = ballu.score(policy, designs, "obstacle", episodes=2, cfg=cfg, workers=1, final_x=True)
+        two, x2 = ballu.score(policy, designs, "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
+        np.testing.assert_array_equal(one, two)
+        np.testing.assert_array_equal(x1, x2)                  # the same trajectories, to the last bit
+        assert np.unique(x1[:, 0]).size == len(x1)             # ... and they did differ between lanes
+        if policy is learned:   # row by row: a design's score does not depend on who shares its call
+            _, x3 = ballu.score(policy, designs[1:4], "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
+            np.testing.assert_array_equal(x1[1:4], x3)
+    assert ballu.shared_pool(2) is ballu.shared_pool(2)
+
+
+@pytest.mark.parametrize("argv, msg", [(["--steps", "-5"], "--steps -5 must be >= 1"),
+                                       (["--envs", "2", "--workers", "3"], "--workers 3 must be in [1, --envs 2]"),
+                                       (["--rollout", "0"], "--rollout 0 must be >= 1"),
+                                       (["--seed", "-1"], "--seed -1 must be in [0, 2**64 - 1]"),
+                                       (["--entropy", "nan"], "--entropy nan must be finite"),
+                                       (["--init-mean", "inf"], "--init-mean inf must be finite")])
+def test_ppo_command_line_rejects_out_of_range_numbers(argv, msg, tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        ppo._main(["--train", str(tmp_path / "out"), *argv])
+    assert e.value.code == 2 and msg in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_gaussian_log_prob_and_entropy_match_torch_normal():
+    """The update's hand-written log N(a; mu, std) and entropy equal torch.distributions.Normal's."""
+    g = torch.Generator().manual_seed(0)
+    act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
+    ref = torch.distributions.Normal(mu, log_std.exp())
+    torch.testing.assert_close(ppo.gaussian_log_prob(act, mu, log_std), ref.log_prob(act).sum(-1))
+    torch.testing.assert_close((log_std + 0.5 * math.log(2 * math.pi * math.e)).sum(), ref.entropy().sum(-1)[0])
+
+
+def test_moe_gate_weights_sum_to_one_and_get_gradients():
+    torch.manual_seed(0)
+    cfg = ppo.PPOConfig()
+    pol = ppo.MoEActorCritic(ballu.OBS_DIM, 2, cfg)
+    obs = torch.randn(64, ballu.OBS_DIM)
+    w = pol.gate_weights(obs[:, -4:])
+    assert w.shape == (64, cfg.moe_experts)
+    np.testing.assert_allclose(w.sum(1).detach().numpy(), 1.0, atol=1e-6)
+    loss = ppo.gaussian_log_prob(torch.ones(64, 2), pol.mean(obs), pol.log_std).sum() + pol.aux_loss(obs)
+    loss.backward()
+    g = [p.grad for p in pol.gate.parameters()]
+    assert all(x is not None for x in g) and sum(x.abs().sum() for x in g) > 0
+    # the load-balance term is zero for uniform use and positive otherwise
+    assert float(pol.aux_loss(obs).detach()) >= 0.0
+
+
+# ==========================================================================================================
+# ges.py: the box, initialisation, coverage, refit, router, the loop, resume, executors
+# ==========================================================================================================
+MC_SD = lambda p, n: math.sqrt(p * (1 - p) / n)  # noqa: E731  standard error of an MC fraction
+
+
+# =========================================================================================================
+# ges: the box GES works in (the BALLU design spaces are tested with ballu.py)
+# =========================================================================================================
 
 def test_ges_unit_roundtrip_and_uniform_sampling():
-    s = ges.d3()
+    s = D3_BOX
     x = ges.rng_for(0).random((1000, 3))
     theta = s.from_unit(x)
     np.testing.assert_allclose(s.to_unit(theta), x, atol=1e-12)
@@ -425,16 +714,16 @@ def test_ges_unit_roundtrip_and_uniform_sampling():
 
 
 @pytest.mark.parametrize("call, words", [
-    (lambda: ges.d2().validate([0.95, 0.05]), ["gcr=0.95", "0.72", "0.9"]),
-    (lambda: ges.d2().validate([[0.8, 0.05], [0.8, 0.2]]), ["spcf=0.2", "row 1", "0.001", "0.1"]),
-    (lambda: ges.d2().validate([0.8, float("nan")]), ["spcf=nan"]),
-    (lambda: ges.d2().validate([0.8, 0.05, 0.3]), ["shape", "d=2"]),
-    (lambda: ges.d2(task="walk"), ["task='walk'"]),
-    (lambda: ges.d3(ranges="wide"), ["ranges='wide'"]),
-    (lambda: ges.d2(ranges="facts"), ["ranges='facts'", "task"]),
-    (lambda: ges.DesignSpace(("gcr",), (0.9,), (0.8,), {"l_f": .4, "l_t": .4, "spcf": .01}),
+    (lambda: ballu.d2().validate([0.95, 0.05]), ["gcr=0.95", "0.72", "0.9"]),
+    (lambda: ballu.d2().validate([[0.8, 0.05], [0.8, 0.2]]), ["spcf=0.2", "row 1", "0.001", "0.1"]),
+    (lambda: ballu.d2().validate([0.8, float("nan")]), ["spcf=nan"]),
+    (lambda: ballu.d2().validate([0.8, 0.05, 0.3]), ["shape", "d=2"]),
+    (lambda: ballu.d2(task="walk"), ["task='walk'"]),
+    (lambda: ballu.d3(ranges="wide"), ["ranges='wide'"]),
+    (lambda: ballu.d2(ranges="facts"), ["ranges='facts'", "task"]),
+    (lambda: ballu.DesignSpace(("gcr",), (0.9,), (0.8,), {"l_f": .4, "l_t": .4, "spcf": .01}),
      ["gcr", "low < high"]),
-    (lambda: ges.DesignSpace(("gcr",), (0.7,), (0.8,), {"l_f": .4}), ["l_t"]),
+    (lambda: ballu.DesignSpace(("gcr",), (0.7,), (0.8,), {"l_f": .4}), ["l_t"]),
     (lambda: ges.GESConfig(K=0), ["K=0", ">= 1"]),
     (lambda: ges.GESConfig(init="kmeans"), ["init='kmeans'", "fps+lloyd"]),
     (lambda: ges.GESConfig(router="nearest"), ["router='nearest'", "density"]),
@@ -601,7 +890,7 @@ SITES = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])  # = ges.DEMO_SITES_2
 
 
 def _land(space=None):
-    return ges.PlantedLandscape(space or ges.d2(), SITES)
+    return ges.PlantedLandscape(space or D2_BOX, SITES)
 
 
 def _run(run_dir, land=None, executor=None, train=None, config=None, seed=0):
@@ -725,7 +1014,7 @@ def test_ges_process_pool_equals_serial(synthetic_run, tmp_path):
 
 def test_ges_seed_changes_run_and_3d_runs(tmp_path):
     cfg = ges.GESConfig(K=6, max_rounds=3)
-    land3 = ges.PlantedLandscape(ges.d3(), ges.rng_for(12345).uniform(0.1, 0.9, (6, 3)))
+    land3 = ges.PlantedLandscape(D3_BOX, ges.rng_for(12345).uniform(0.1, 0.9, (6, 3)))
     a = _run(tmp_path / "a", land3, config=cfg, seed=1)
     b = _run(tmp_path / "b", land3, config=cfg, seed=2)
     assert a.rounds == 3 and a.mu_unit.shape == (6, 3)
@@ -749,7 +1038,7 @@ def _tied_scores(k, ckpt, designs):
 def test_ges_train_contract_warm_start_territory_and_ties(tmp_path):
     """ckpt_in is the same specialist's previous checkpoint (None in round 0), the sampler is the current
     territory, every (round, k) gets its own seed, and tied scores go to the lowest index (eq. 6, facts)."""
-    res = ges.run_ges(ges.d2(), _RecordingTrainer(), _tied_scores, str(tmp_path), ges.GESConfig(K=3, max_rounds=3),
+    res = ges.run_ges(D2_BOX, _RecordingTrainer(), _tied_scores, str(tmp_path), ges.GESConfig(K=3, max_rounds=3),
                       5, ges.SerialExecutor(), progress=None)
     hist, seeds = res.history["rounds"], set()
     for r in range(3):
@@ -783,10 +1072,10 @@ def test_ges_contract_violations_are_reported(tmp_path):
 
 
 def test_ges_sampler_is_picklable_clipped_and_physical():
-    s = ges.GaussianSampler(np.array([0.02, 0.5]), np.array([0.3, 0.01]), ges.d2(), seed=3)
+    s = ges.GaussianSampler(np.array([0.02, 0.5]), np.array([0.3, 0.01]), D2_BOX, seed=3)
     s2 = pickle.loads(pickle.dumps(s))
     x = s2(ges.rng_for(16), 5000)
-    ges.d2().validate(x)  # clipped to the box, physical units
+    D2_BOX.validate(x)  # clipped to the box, physical units
     assert np.mean(x[:, 0] == 0.72) > 0.3  # clipping piles mass on the low GCR bound
     np.testing.assert_allclose(x[:, 1].mean(), 0.001 + 0.5 * 0.099, atol=1e-3)
     np.testing.assert_allclose(s.sigma_physical, [0.3 * 0.18, 0.01 * 0.099])
@@ -800,10 +1089,6 @@ def test_ges_bench_runs():
 # ==========================================================================================================
 # tpe.py: Tree-structured Parzen Estimator for the outer design search
 # ==========================================================================================================
-# ============================================================================
-# tpe.py: Tree-structured Parzen Estimator for the outer design search
-# (self-contained section; runs in a few seconds)
-# ============================================================================
 
 
 
@@ -1147,278 +1432,9 @@ def test_progress_lines_and_callback(capsys):
 
 
 # ==========================================================================================================
-# ppo.py: GAE against brute force, a toy env solved, checkpoints, MoE gate
+# run_all.py: the smoke pipeline end to end, resume after a kill, bad input, GES's J through the router
 # ==========================================================================================================
-import ppo  # noqa: E402  (kept beside its tests)
-import torch  # noqa: E402
 
-
-def brute_force_returns(rewards, values, dones, last_value, gamma, lam):
-    """lambda-returns by their definition: a weighted sum of n-step returns, cut at episode ends."""
-    T, N = rewards.shape
-    adv = np.zeros((T, N))
-    for n in range(N):
-        for t in range(T):
-            total, weight = 0.0, 1.0
-            for k in range(t, T):
-                nextv = last_value[n] if k == T - 1 else values[k + 1, n]
-                delta = rewards[k, n] + gamma * nextv * (1 - dones[k, n]) - values[k, n]
-                total += weight * delta
-                if dones[k, n]:
-                    break
-                weight *= gamma * lam
-            adv[t, n] = total
-    return adv
-
-
-def test_gae_equals_brute_force_with_terminations_and_truncations():
-    rng = np.random.default_rng(0)
-    T, N = 30, 5
-    r, v = rng.normal(size=(T, N)), rng.normal(size=(T, N))
-    dones = (rng.uniform(size=(T, N)) < 0.15).astype(float)   # truncations carry their bootstrap in r
-    last = rng.normal(size=N)
-    adv, ret = ppo.gae(r, v, dones, last, 0.99, 0.95)
-    np.testing.assert_allclose(adv, brute_force_returns(r, v, dones, last, 0.99, 0.95), atol=1e-10)
-    np.testing.assert_allclose(ret, adv + v)
-    # lambda = 1 without episode ends: the plain discounted return bootstrapped at the end
-    adv1, ret1 = ppo.gae(r, v, np.zeros((T, N)), last, 0.9, 1.0)
-    disc = [sum(0.9 ** (k - t) * r[k] for k in range(t, T)) + 0.9 ** (T - t) * last for t in range(T)]
-    np.testing.assert_allclose(ret1, np.array(disc), atol=1e-10)
-
-
-class PointMass:
-    """A batched toy env: a point on a line driven to the origin; reward -|x|; 40-step episodes."""
-
-    def __init__(self, num_envs=16):
-        self.num_envs, self.obs_dim, self.act_dim = num_envs, 2, 1
-
-    def reset(self, seed=None, options=None):
-        self.rng = np.random.default_rng(seed)
-        self.x, self.t = self.rng.uniform(-1, 1, self.num_envs), np.zeros(self.num_envs, int)
-        self.ret = np.zeros(self.num_envs)
-        return self._obs(), {"levels": np.zeros(self.num_envs)}
-
-    def _obs(self):
-        return np.stack([self.x, self.t / 40.0], 1).astype(np.float32)
-
-    def step(self, a):
-        self.x = np.clip(self.x + 0.1 * np.clip(a[:, 0], -1, 1), -2, 2)
-        self.t += 1
-        r = -np.abs(self.x)
-        self.ret += r
-        trunc = self.t >= 40
-        obs = self._obs()
-        info = {"final_obs": obs.copy(), "_final_obs": trunc, "episode_return": np.where(trunc, self.ret, np.nan),
-                "levels": np.zeros(self.num_envs)}
-        if trunc.any():
-            self.x[trunc] = self.rng.uniform(-1, 1, trunc.sum())
-            self.t[trunc], self.ret[trunc] = 0, 0
-            obs = self._obs()
-        return obs, r.astype(np.float32), np.zeros(self.num_envs, bool), trunc, info
-
-
-def point_mass_return(policy_fn, episodes=64):
-    env = PointMass(episodes)
-    obs, _ = env.reset(seed=99)
-    total = np.zeros(episodes)
-    for _ in range(40):
-        obs, r, *_ = env.step(policy_fn(obs))
-        total += r
-    return total.mean()
-
-
-def test_ppo_solves_a_point_mass(tmp_path):
-    """Random start |x| ~ U(0,1): a do-nothing policy scores about -20 per episode, the optimum about -2.8."""
-    cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4)
-    ck = str(tmp_path / "pm.pt")
-    ppo.train("mlp", PointMass(16), None, 40_000, ck, cfg, seed=0, progress=None,
-              log_csv=str(tmp_path / "pm.csv"))
-    pf = ppo.load_policy(ck)
-    zero = point_mass_return(lambda o: np.zeros((len(o), 1)))
-    learned = point_mass_return(pf)
-    assert zero < -15 and learned > -6, (zero, learned)
-    assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
-
-
-def test_checkpoint_round_trip_and_clear_errors(tmp_path):
-    cfg = ppo.PPOConfig(num_envs=8, num_steps=8, design_dim=1)   # the MoE gate reads the last obs entry
-    ck = str(tmp_path / "a.pt")
-    ppo.train("moe", PointMass(8), None, 64, ck, cfg, seed=1, progress=None)
-    obs = np.random.default_rng(0).normal(size=(5, 2)).astype(np.float32)
-    a1, a2 = ppo.load_policy(ck)(obs), ppo.load_policy(ck)(obs)
-    np.testing.assert_array_equal(a1, a2)
-    state = ppo.load_checkpoint(ck)
-    policy, norm = ppo.policy_from(state)
-    with torch.no_grad():
-        direct = policy.mean(torch.from_numpy(norm(obs))).numpy()
-    np.testing.assert_allclose(a1, direct, rtol=1e-6)
-    # resuming the finished run does nothing; more steps continue from its step count
-    assert ppo.train("moe", PointMass(8), None, 64, ck, cfg, progress=None)["resumed"]
-    assert ppo.train("moe", PointMass(8), None, 128, ck, cfg, progress=None)["steps"] == 128
-    bad = tmp_path / "bad.pt"
-    bad.write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match="corrupt"):
-        ppo.load_checkpoint(str(bad))
-    with pytest.raises(FileNotFoundError):
-        ppo.load_checkpoint(str(tmp_path / "missing.pt"))
-    with pytest.raises(ValueError, match="not a mlp policy"):
-        ppo.train("mlp", PointMass(8), None, 64, str(tmp_path / "b.pt"), cfg, init_ckpt=ck, progress=None)
-
-
-def test_train_start_level_is_one_level_or_a_uniform_spread(tmp_path):
-    """start_level=(low, high) starts each lane at its own level in [low, high]; an int starts all at it."""
-    seen = []
-
-    class Recording(PointMass):
-        def reset(self, seed=None, options=None):
-            seen.append(np.asarray(options["levels"]).copy())
-            return super().reset(seed=seed, options=options)
-
-    cfg = ppo.PPOConfig(num_envs=64, num_steps=4)
-    ppo.train("mlp", Recording(64), None, 256, str(tmp_path / "a.pt"), cfg, start_level=(3, 9), progress=None)
-    ppo.train("mlp", Recording(64), None, 256, str(tmp_path / "b.pt"), cfg, start_level=5, progress=None)
-    assert seen[0].min() >= 3 and seen[0].max() <= 9 and len(set(seen[0].tolist())) >= 5
-    assert (seen[1] == 5).all()
-
-
-class JoinedPointMass:
-    """PointMass lanes in independent parts (each with its global lane ids), stepped all at once here."""
-
-    def __init__(self, sizes=(3, 5)):
-        self.parts = np.split(np.arange(sum(sizes)), np.cumsum(sizes)[:-1])
-        self.subs = [PointMass(n) for n in sizes]
-        for sub, ids in zip(self.subs, self.parts):
-            sub.lane_ids = ids
-        self.num_envs, self.obs_dim, self.act_dim = sum(sizes), 2, 1
-
-    def reset(self, seed=None, options=None):
-        obs = [s.reset(seed=seed + i)[0] for i, s in enumerate(self.subs)]
-        return np.concatenate(obs), {"levels": np.zeros(self.num_envs)}
-
-    def step(self, a):
-        outs = [s.step(a[ids]) for s, ids in zip(self.subs, self.parts)]
-        info = {key: np.concatenate([o[4][key] for o in outs]) for key in outs[0][4]}
-        return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (info,)
-
-
-class SplitPointMass(JoinedPointMass):
-    """The same lanes rolled out part by part, like ballu.VecBallu's worker processes (`run`)."""
-
-    def run(self, fn, args):
-        return [fn(sub, *a) for sub, a in zip(self.subs, args)]
-
-
-@pytest.mark.parametrize("text", ["10:5", "abc", "80", "-1", "3:", ":4"])
-def test_start_level_argument_errors_name_the_range(text):
-    import argparse
-    with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
-        ppo._levels_arg(text)
-    assert ppo._levels_arg("3:9") == (3, 9) and ppo._levels_arg("7") == 7 and ppo._levels_arg("5:5") == (5, 5)
-
-
-def test_rollout_split_over_workers_equals_one_process():
-    """Each worker rolling out its own lanes with a policy copy gives the buffers of one in-process rollout
-    (the noise is per lane), across episode ends (40-step episodes, 50 steps: time-limit bootstraps included)."""
-    cfg = ppo.PPOConfig(num_envs=8, num_steps=50)
-    out = []
-    for env in (JoinedPointMass(), SplitPointMass()):
-        obs, _ = env.reset(seed=5)
-        torch.manual_seed(0)
-        pol, norm = ppo.make_policy("mlp", 2, 1, cfg), ppo.RunningNorm(2)
-        norm.update(obs)
-        out.append(ppo.rollout("mlp", pol, norm, env, obs, 50, cfg, noise_seed=3) + (norm,))
-    (b1, o1, _, r1, n1), (b2, o2, _, r2, n2) = out
-    for k in b1:
-        np.testing.assert_allclose(b1[k], b2[k], rtol=1e-5, atol=1e-6, err_msg=k)
-    np.testing.assert_allclose(o1, o2, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(sorted(r1), sorted(r2), rtol=1e-5)
-    np.testing.assert_allclose(n1.mean, n2.mean, rtol=1e-6)   # the normaliser saw every new observation
-    assert n1.count == pytest.approx(1e-4 + 8 * 51)
-    assert len(r1) == 8 and b1["done"].sum() == 8
-    # the stored log-probability (computed from the noise) is that of the stored action under N(mu, std)
-    logp = torch.distributions.Normal(torch.from_numpy(b1["mu"]), pol.log_std.exp().detach()).log_prob(
-        torch.from_numpy(b1["act"])).sum(-1).numpy()
-    np.testing.assert_allclose(b1["logp"], logp, rtol=1e-4, atol=1e-4)
-
-
-def test_vecballu_rollout_in_workers_equals_one_process():
-    """ppo's rollout with a policy copy in each of 2 VecBallu workers gives what one process gives."""
-    cfg, bcfg = ppo.PPOConfig(num_envs=4, num_steps=6), BalluConfig(task="ramp")
-    torch.manual_seed(0)
-    pol = ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, cfg)
-    out = []
-    for env in (ballu.make_env(4, 1, bcfg), ballu.VecBallu(4, 2, bcfg)):
-        try:
-            obs, _ = env.reset(seed=2, options={"design_sampler": ballu.FixedDesign(BASELINE)})
-            norm = ppo.RunningNorm(ballu.OBS_DIM)
-            norm.update(obs)
-            out.append(ppo.rollout("mlp", pol, norm, env, obs, 6, cfg, noise_seed=1))
-            if hasattr(env, "run"):
-                with pytest.raises(ValueError, match="one argument tuple per worker"):
-                    env.run(ppo._random_steps, [(1, 0.5, 0.5, 0)])
-        finally:
-            env.close()
-    for k in out[0][0]:
-        np.testing.assert_allclose(out[0][0][k], out[1][0][k], rtol=1e-4, atol=1e-5, err_msg=k)
-    np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-4, atol=1e-5)
-
-
-def test_score_in_workers_equals_score_in_one_process():
-    """ballu.score in the shared worker pool (each worker plays its designs with its own policy copy) gives
-    exactly the scores of one process, for a per-lane scripted gait and a learned policy; the pool is reused."""
-    cfg = replace(BalluConfig(), episode_steps=100)
-    rng = np.random.default_rng(4)
-    designs = np.column_stack([rng.uniform(0.3, 0.5, (6, 2)), rng.uniform(0.75, 0.9, 6), rng.uniform(0.001, 0.1, 6)])
-    torch.manual_seed(3)
-    learned = ppo.PolicyFn(ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, ppo.PPOConfig()),
-                           ppo.RunningNorm(ballu.OBS_DIM))
-    pump = ballu.PumpGait([6, 8, 10, 12, 14, 16], ["sync", "alternate"] * 3)
-    for policy in (pump, learned):
-        one, x1 = ballu.score(policy, designs, "obstacle", episodes=2, cfg=cfg, workers=1, final_x=True)
-        two, x2 = ballu.score(policy, designs, "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
-        np.testing.assert_array_equal(one, two)
-        np.testing.assert_array_equal(x1, x2)                  # the same trajectories, to the last bit
-        assert np.unique(x1[:, 0]).size == len(x1)             # ... and they did differ between lanes
-        if policy is learned:   # row by row: a design's score does not depend on who shares its call
-            _, x3 = ballu.score(policy, designs[1:4], "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
-            np.testing.assert_array_equal(x1[1:4], x3)
-    assert ballu.shared_pool(2) is ballu.shared_pool(2)
-
-
-def test_gaussian_log_prob_and_entropy_match_torch_normal():
-    """The update's hand-written log N(a; mu, std) and entropy equal torch.distributions.Normal's."""
-    g = torch.Generator().manual_seed(0)
-    act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
-    ref = torch.distributions.Normal(mu, log_std.exp())
-    torch.testing.assert_close(ppo.gaussian_log_prob(act, mu, log_std), ref.log_prob(act).sum(-1))
-    torch.testing.assert_close((log_std + 0.5 * math.log(2 * math.pi * math.e)).sum(), ref.entropy().sum(-1)[0])
-
-
-def test_moe_gate_weights_sum_to_one_and_get_gradients():
-    torch.manual_seed(0)
-    cfg = ppo.PPOConfig()
-    pol = ppo.MoEActorCritic(ballu.OBS_DIM, 2, cfg)
-    obs = torch.randn(64, ballu.OBS_DIM)
-    w = pol.gate_weights(obs[:, -4:])
-    assert w.shape == (64, cfg.moe_experts)
-    np.testing.assert_allclose(w.sum(1).detach().numpy(), 1.0, atol=1e-6)
-    loss = ppo.gaussian_log_prob(torch.ones(64, 2), pol.mean(obs), pol.log_std).sum() + pol.aux_loss(obs)
-    loss.backward()
-    g = [p.grad for p in pol.gate.parameters()]
-    assert all(x is not None for x in g) and sum(x.abs().sum() for x in g) > 0
-    # the load-balance term is zero for uniform use and positive otherwise
-    assert float(pol.aux_loss(obs).detach()) >= 0.0
-
-
-# ==========================================================================================================
-# run_all.py: the smoke pipeline end to end, resume after a kill, bad input, GES as one routed policy
-# ==========================================================================================================
-import csv as csv_module  # noqa: E402
-import re  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-
-import run_all  # noqa: E402
 
 SMOKE_FIGURES = ["fig1_strip_obstacle.png", "fig1_strip_ramp.png", "fig3_distributions.png",
                  "fig4_expert_contributions.png", "fig5_toe_heights.png", "fig7_k_sensitivity.png",
@@ -1537,20 +1553,21 @@ def test_run_all_bad_input_exits_2_and_overwrites_nothing(smoke_run, tmp_path, c
     assert proc.returncode == 2 and "unknown stage" in proc.stderr
 
 
-def test_run_all_routed_policy_is_the_density_router(smoke_run):
-    """GES scored as one policy: each lane's design, read back from its observation, is routed like
-    GESResult.route (paper eq. 10) and played by that specialist."""
+def test_run_all_ges_score_is_the_density_router(smoke_run):
+    """GES's J in the pipeline: each design is routed like GESResult.route (paper eq. 10) and played by that
+    specialist alone."""
     run_dir = os.path.join(smoke_run, "ges", "obstacle-d3-K6-fps-lloyd")
-    res, routed = ges.load_result(run_dir), run_all.RoutedPolicy(run_dir)
-    theta = res.space.sample_uniform(np.random.default_rng(0), 64)
+    res, preset = ges.load_result(run_dir), run_all.PRESETS["smoke"]
+    space = run_all.space_of(preset, "obstacle", "d3")
+    theta = space.sample_uniform(np.random.default_rng(0), 64)
     ks = res.route(theta)
-    np.testing.assert_array_equal(routed.route_designs(theta), ks)
-    rng = np.random.default_rng(1)
-    obs = rng.normal(size=(64, ballu.OBS_DIM)).astype(np.float32)
-    obs[:, -4:] = ballu.normalise_design(res.space.full(theta))
-    act = routed(obs)
-    for k in np.unique(ks):
-        np.testing.assert_allclose(act[ks == k], ppo.load_policy(res.ckpt[k])(obs[ks == k]), rtol=1e-6)
+    np.testing.assert_array_equal(ges.route(res.space.to_unit(theta), res.mu_unit, res.sigma_unit), ks)
+    pick = np.concatenate([np.flatnonzero(ks == k)[:1] for k in np.unique(ks)])[:3]   # one design per specialist
+    J = run_all.ges_J(run_dir, "obstacle", space, preset)(theta[pick])
+    alone = [ballu.score(ppo.load_policy(res.ckpt[ks[i]]), space.full(theta[i]), "obstacle",
+                         episodes=preset.score_episodes)[0] for i in pick]
+    np.testing.assert_array_equal(J, alone)
+    assert run_all.ges_specialist(run_dir, theta[pick[0]]).policy is not None
 
 
 def test_run_all_small_rules():
