@@ -8,7 +8,8 @@ Read top to bottom:
   5. the trainer: checkpoints, `rollout` (here or in the env's workers), `start_run` (resume, warm start or fresh),
      `TrainLog` (CSV + progress line), `train(...)` (rollout -> GAE -> PPO update, curriculum), learning curve
   6. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
-  7. command line: --bench, --train
+  7. the protocol that compares PPO settings on BALLU (`protocol`, `PROTOCOL_SETTINGS`)
+  8. command line: --bench, --train, --protocol, --strip
 
 The env is anything with the batched interface of ballu.py: `num_envs`, `obs_dim`, `act_dim`,
 `reset(seed=, options=) -> (obs, info)` and `step(actions) -> (obs, reward, terminated, truncated, info)` with
@@ -539,7 +540,127 @@ def load_policy(path: str) -> PolicyFn:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 7. Command line
+# 7. The PPO protocol on BALLU (issue 16): one fixed comparison of settings
+# ----------------------------------------------------------------------------------------------------------
+# Each setting = changes to PPOConfig, to ballu.BalluConfig, and/or the training curriculum's "start_level".
+# "before" is what the project trained with before issue 16 (PPOConfig defaults, initial mean action 0.5).
+PROTOCOL_SETTINGS = {
+    "before": {"init_action_mean": 0.5},
+}
+PROTOCOL_DESIGN_SEED = 16   # the 12 held-out D2 designs: the same for every setting, task and seed
+
+
+def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg):
+    """Train one (setting, task, seed) to each milestone in turn; J on the held-out designs at each one.
+    Resumable: a milestone's result is kept in result_<steps>.json."""
+    import json
+    import shutil
+    import ballu
+    os.makedirs(folder, exist_ok=True)
+    changes = dict(setting)
+    start_level = changes.pop("start_level", 0)
+    ppo_fields = set(asdict(base_cfg))
+    cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
+    bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
+    ckpt, log_csv, out = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv"), []
+    for m in milestones:
+        path = os.path.join(folder, f"result_{m}.json")
+        if os.path.exists(path):
+            with open(path) as f:
+                out.append(json.load(f))
+            continue
+        env = ballu.make_env(cfg.num_envs, workers, bcfg)
+        t0 = time.time()
+        try:
+            summary = train("mlp", env, ballu.UniformDesign(ballu.d2()), m, ckpt, cfg, seed=seed,
+                            start_level=start_level, log_csv=log_csv, progress=None)
+        finally:
+            env.close()
+        train_s = time.time() - t0
+        shutil.copy(ckpt, os.path.join(folder, f"policy_{m}.pt"))
+        t0 = time.time()
+        J = ballu.score(load_policy(ckpt), designs, task, episodes=episodes, workers=workers, cfg=bcfg)
+        level = float(np.mean(load_checkpoint(ckpt)["levels"].numpy()))
+        res = {"steps": m, "J": J.tolist(), "mean_J": float(J.mean()), "train_level": level,
+               "train_s": train_s, "score_s": time.time() - t0, "resumed": bool(summary.get("resumed"))}
+        with open(path, "w") as f:
+            json.dump(res, f)
+        out.append(res)
+    return out
+
+
+def _mean_se(values) -> str:
+    v = np.asarray(values, dtype=float)
+    se = v.std(ddof=1) / math.sqrt(len(v)) if len(v) > 1 else float("nan")
+    return f"{v.mean():.1f} +- {se:.1f}"
+
+
+def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(0, 1, 2),
+             milestones=(1_000_000, 2_000_000), n_designs: int = 12, episodes: int = 20, workers: int = 2,
+             base_cfg: PPOConfig = PPOConfig(), progress=print) -> str:
+    """e2e MLP trained on uniform D2 designs per (setting, task, seed); J over `n_designs` fixed held-out D2 designs
+    at each milestone; a table (mean and standard error over seeds) in out/protocol.md and the training-level
+    curves in out/protocol_curves.png. All settings share designs, budgets, seeds and code. Resumable."""
+    import ballu
+    unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
+    if unknown:
+        raise ValueError(f"settings {unknown} unknown: one of {sorted(PROTOCOL_SETTINGS)}")
+    theta = ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs)
+    designs = ballu.d2().full(theta)
+    runs = [(s, t, seed) for s in settings for t in tasks for seed in seeds]
+    results, t_start = {}, time.time()
+    for i, (s, t, seed) in enumerate(runs):
+        folder = os.path.join(out, s, t, f"seed{seed}")
+        results[(s, t, seed)] = _protocol_run(folder, PROTOCOL_SETTINGS[s], t, seed, milestones, designs, episodes,
+                                              workers, base_cfg)
+        if progress:
+            eta = (time.time() - t_start) / (i + 1) * (len(runs) - i - 1)
+            last = results[(s, t, seed)][-1]
+            progress(f"protocol {i + 1}/{len(runs)}: {s} {t} seed {seed}: J {last['mean_J']:.1f}, training level "
+                     f"{last['train_level']:.1f}  (eta {eta / 60:.0f} min)")
+    rows = ["| setting | task | " + " | ".join(f"J at {m:,} steps" for m in milestones)
+            + " | training level at the end | wall time per seed |", "|---|---|" + "---|" * (len(milestones) + 2)]
+    for s in settings:
+        for t in tasks:
+            rs = [results[(s, t, seed)] for seed in seeds]
+            cells = [_mean_se([r[k]["mean_J"] for r in rs]) for k in range(len(milestones))]
+            wall = np.mean([sum(x["train_s"] + x["score_s"] for x in r) for r in rs]) / 60
+            rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {_mean_se([r[-1]['train_level'] for r in rs])} "
+                        f"| {wall:.0f} min |")
+    text = (f"J over {n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED}), {episodes} episodes each; "
+            f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows) + "\n")
+    with open(os.path.join(out, "protocol.md"), "w") as f:
+        f.write(text)
+    _protocol_curves(out, settings, tasks, seeds, os.path.join(out, "protocol_curves.png"))
+    return text
+
+
+def _protocol_curves(out, settings, tasks, seeds, path):
+    """Mean training curriculum level against control steps, one line per setting (mean over seeds)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 3.4), squeeze=False)
+    for ax, t in zip(axes[0], tasks):
+        for s in settings:
+            curves = []
+            for seed in seeds:
+                with open(os.path.join(out, s, t, f"seed{seed}", "log.csv")) as f:
+                    rows = list(csv.DictReader(f))
+                curves.append((np.array([float(r["steps"]) for r in rows]),
+                               np.array([float(r["mean_level"]) for r in rows])))
+            n = min(len(c[0]) for c in curves)
+            ax.plot(curves[0][0][:n], np.mean([c[1][:n] for c in curves], axis=0), label=s)
+        ax.set(title=f"{t}: e2e MLP on uniform D2", xlabel="control steps", ylabel="mean training level")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 8. Command line
 # ----------------------------------------------------------------------------------------------------------
 def _ballu_sampler(name: str):
     import ballu
@@ -587,6 +708,11 @@ def _main(argv=None):
     ap.add_argument("--strip", metavar="PNG", help="motion strip of one episode of --policy (ballu.motion_strip)")
     ap.add_argument("--policy", metavar="CKPT", help="a checkpoint of this trainer, for --strip")
     ap.add_argument("--level", type=int, default=30, help="terrain level of the --strip episode")
+    ap.add_argument("--protocol", metavar="OUT_DIR", help="compare PPO settings by the fixed protocol (issue 16)")
+    ap.add_argument("--settings", default="before", help=f"comma list of {sorted(PROTOCOL_SETTINGS)}")
+    ap.add_argument("--tasks", default="obstacle,ramp", help="protocol tasks, comma list")
+    ap.add_argument("--seeds", default="0,1,2", help="protocol seeds, comma list")
+    ap.add_argument("--milestones", default="1000000,2000000", help="protocol: control steps at which J is scored")
     args = ap.parse_args(argv)
     checks = (("--steps", args.steps, ">= 1", args.steps >= 1),
               ("--envs", args.envs, ">= 1", args.envs >= 1),
@@ -608,6 +734,20 @@ def _main(argv=None):
             ap.error(f"--level {args.level} must lie in [0, {ballu.MAX_LEVEL}]")
         design = _ballu_sampler(args.design)(np.random.default_rng(0), 1)[0]
         print("wrote", ballu.motion_strip(args.strip, load_policy(args.policy), args.task, args.level, design))
+    if args.protocol:
+        settings, tasks = args.settings.split(","), args.tasks.split(",")
+        for name, values, allowed in (("--settings", settings, PROTOCOL_SETTINGS), ("--tasks", tasks, ballu.TASKS)):
+            if not set(values) <= set(allowed):
+                ap.error(f"{name} {','.join(values)}: each must be one of {sorted(allowed)}")
+        try:
+            seeds = [int(v) for v in args.seeds.split(",")]
+            milestones = sorted(int(v) for v in args.milestones.split(","))
+        except ValueError:
+            ap.error("--seeds and --milestones must be comma lists of integers")
+        if min(seeds) < 0 or milestones[0] < 1:
+            ap.error("--seeds must be >= 0 and --milestones >= 1")
+        print(protocol(args.protocol, settings, tasks, seeds, milestones, workers=args.workers,
+                       base_cfg=PPOConfig(num_envs=args.envs, num_steps=args.rollout)))
     if args.bench:
         bench(cfg, bcfg, args.workers)
     if args.train:

@@ -666,6 +666,21 @@ def test_ppo_command_line_rejects_out_of_range_numbers(argv, msg, tmp_path, caps
     assert not (tmp_path / "out").exists()
 
 
+def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
+    """The issue-16 protocol on a tiny budget: a row per setting and task with mean +- SE over seeds, the curve
+    figure, and a rerun that trains nothing (every milestone's result is kept)."""
+    kw = dict(settings=("before",), tasks=("obstacle",), seeds=(0, 1), milestones=(128, 256), n_designs=2,
+              episodes=1, workers=1, base_cfg=ppo.PPOConfig(num_envs=4, num_steps=16), progress=None)
+    text = ppo.protocol(str(tmp_path), **kw)
+    assert "| before | obstacle | " in text and "J at 256 steps" in text and " +- " in text
+    assert (tmp_path / "protocol_curves.png").exists() and (tmp_path / "before/obstacle/seed1/result_256.json").exists()
+    stamp = os.path.getmtime(tmp_path / "before/obstacle/seed0/policy.pt")
+    assert ppo.protocol(str(tmp_path), **kw) == text
+    assert os.path.getmtime(tmp_path / "before/obstacle/seed0/policy.pt") == stamp
+    with pytest.raises(ValueError, match="unknown"):
+        ppo.protocol(str(tmp_path), **dict(kw, settings=("nope",)))
+
+
 def test_gaussian_log_prob_and_entropy_match_torch_normal():
     """The update's hand-written log N(a; mu, std) and entropy equal torch.distributions.Normal's."""
     g = torch.Generator().manual_seed(0)
