@@ -337,6 +337,41 @@ class Throttled:
             say(f"    {self.prefix} {text}")
 
 
+_DASK_CLIENTS: dict = {}
+
+
+def dask_client(scheduler: str | None, workers: int):
+    """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
+    processes with one thread each (torch keeps one thread per job)."""
+    key = (scheduler, workers)
+    if key not in _DASK_CLIENTS:
+        from distributed import Client, LocalCluster
+        if scheduler:
+            _DASK_CLIENTS[key] = Client(scheduler)
+        else:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            _DASK_CLIENTS[key] = Client(cluster)
+    return _DASK_CLIENTS[key]
+
+
+def close_dask_clients() -> None:
+    for client in _DASK_CLIENTS.values():
+        cluster = client.cluster
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    _DASK_CLIENTS.clear()
+
+
+def dask_executor(client):
+    """distributed's concurrent.futures executor (pure=False: every submit runs, none is deduplicated). Its
+    shutdown gets the standard `cancel_futures` too (there, wait=False cancels)."""
+    ex = client.get_executor(pure=False)
+    plain = ex.shutdown
+    ex.shutdown = lambda wait=True, cancel_futures=False: plain(wait=wait and not cancel_futures)
+    return ex
+
+
 def kill_hook(tag: str) -> None:
     """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
     if os.environ.get("RUN_ALL_FAIL_AT") == tag:
@@ -381,11 +416,14 @@ def trim_log(csv_path: str, steps: int) -> None:
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class Run:
-    """Where a run writes and with which settings."""
+    """Where a run writes and with which settings. `executor`: "process" (a local process pool of `workers`) or
+    "dask" (a Dask cluster at `scheduler`, or a local one of `workers` processes)."""
     out: str
     preset: Preset
     seed: int
     workers: int
+    executor: str = "process"
+    scheduler: str | None = None
 
     def path(self, *parts) -> str:
         return os.path.join(self.out, *parts)
@@ -399,7 +437,11 @@ class Run:
         return space_of(self.preset, task, sp).sample_uniform(rng, self.preset.n_test)
 
     def pool(self):
-        """A process pool for independent jobs (spawn: the parent holds torch threads), or inline if 1 worker."""
+        """The executor of independent jobs (trainings, GES specialists' rounds, TPE searches): a Dask cluster's,
+        a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs its env
+        in its own process (workers=1 inside), so any executor gives the same numbers."""
+        if self.executor == "dask":
+            return dask_executor(dask_client(self.scheduler, self.workers))
         if self.workers <= 1:
             return ges.SerialExecutor()
         return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
@@ -1001,6 +1043,61 @@ PAPER_KSENS_PEAK_K = 3
 PAPER_COST = {"bo_h": 100.0, "ges_h": 63.0, "reduction_pct": 37.0, "stage1_h": 48.0}
 
 
+# --- uncertainty (beyond the paper, which gives none): bootstrap over test designs, paired comparisons ---
+N_BOOT = 10_000          # [ours] bootstrap resamples; the CI's Monte Carlo error is ~0.01 of its width
+CI_LEVEL = 0.95
+
+
+def bootstrap_ci(x, seed: int = 0, level: float = CI_LEVEL) -> tuple:
+    """Percentile bootstrap CI of the mean over test designs (each design is one draw of the design space)."""
+    x = np.asarray(x, dtype=float)
+    idx = np.random.default_rng(seed).integers(0, len(x), (N_BOOT, len(x)))
+    means = x[idx].mean(axis=1)
+    return float(np.quantile(means, (1 - level) / 2)), float(np.quantile(means, (1 + level) / 2))
+
+
+def paired_comparison(a, b, seed: int = 0) -> dict:
+    """a vs b on the same test designs: mean difference with its paired-bootstrap CI, the Wilcoxon signed-rank
+    p-value (two-sided; 1.0 when every pair ties), and the win rate of a (ties apart) with its bootstrap CI."""
+    from scipy.stats import wilcoxon
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    d = a - b
+    idx = np.random.default_rng(seed).integers(0, len(d), (N_BOOT, len(d)))
+    q = ((1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2)
+    diff_lo, diff_hi = np.quantile(d[idx].mean(axis=1), q)
+    win_lo, win_hi = np.quantile(100 * (d[idx] > 0).mean(axis=1), q)
+    p = float(wilcoxon(a, b).pvalue) if np.any(d != 0) else 1.0
+    return {"diff": float(d.mean()), "diff_lo": float(diff_lo), "diff_hi": float(diff_hi), "p": p,
+            "win_pct": float(100 * np.mean(d > 0)), "win_lo": float(win_lo), "win_hi": float(win_hi),
+            "tie_pct": float(100 * np.mean(d == 0))}
+
+
+def verdict(cmp: dict, alpha: float = 0.05) -> str:
+    """A claim 'a > b' from a paired comparison: supported (a higher, p < alpha), not supported (a lower,
+    p < alpha) or not resolved."""
+    if cmp["p"] < alpha:
+        return "supported" if cmp["diff"] > 0 else "not supported"
+    return "not resolved"
+
+
+def mean_ci(x, seed: int = 0, fmt: str = "{:.1f}") -> str:
+    """'mean [95 % CI]' over test designs."""
+    lo, hi = bootstrap_ci(x, seed)
+    return f"{fmt.format(float(np.mean(x)))} [{fmt.format(lo)}, {fmt.format(hi)}]"
+
+
+def cell_ci(scores, paper, seed: int = 0) -> str:
+    """'ours [95 % CI] (paper)'."""
+    return f"{mean_ci(scores, seed)} ({'-' if paper is None else f'{paper:.1f}'})"
+
+
+def comparison_cell(cmp: dict, paper_win=None) -> str:
+    """A paired comparison as one table cell: difference [CI], p-value; win rate [CI] (paper's win rate)."""
+    pw = "-" if paper_win is None else f"{paper_win:.0f}"
+    return (f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}; "
+            f"wins {cmp['win_pct']:.0f} % [{cmp['win_lo']:.0f}, {cmp['win_hi']:.0f}] ({pw}), ties {cmp['tie_pct']:.0f} %")
+
+
 def cell(ours, paper, fmt="{:.1f}") -> str:
     """'ours (paper)'; a missing number is '-'."""
     o = "-" if ours is None else fmt.format(ours)
@@ -1053,9 +1150,8 @@ def report_table2(table2: dict, preset: Preset) -> list:
     for t in TASKS:
         for s in SPACES:
             scores, paper = table2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
-            means.append([t, s.upper(), cell(table2["design"][t], paper["design"]),
-                          cell(scores["baseline"]["mean"], None), cell(scores["mlp"]["mean"], paper["mlp"]),
-                          cell(scores["moe"]["mean"], paper["moe"]), cell(scores["ges"]["mean"], paper["ges"])])
+            means.append([t, s.upper(), cell(table2["design"][t], paper["design"])]
+                         + [cell_ci(scores[m]["scores"], paper.get(m)) for m in ("baseline", "mlp", "moe", "ges")])
     peaks = []
     for t in TASKS:
         for s in SPACES:
@@ -1068,17 +1164,19 @@ def report_table2(table2: dict, preset: Preset) -> list:
     wins_rows = []
     for t in TASKS:
         for s in SPACES:
-            w = table2["cells"][f"{t}-{s}"]["ges_wins"]
-            wins_rows.append([t, s.upper()] + [
-                f"{cell(w[m]['win_pct'], PAPER_WINS[(t, s)].get(m), '{:.0f}')} [ties {w[m]['tie_pct']:.0f}]"
-                for m in ("baseline", "mlp", "moe")])
-    return ([f"## Table II: mean score J over {preset.n_test} uniform test designs (cm obstacle, deg ramp)", ""]
+            cmps = ges_comparisons(table2, t, s)
+            wins_rows.append([t, s.upper()] + [comparison_cell(cmps[m], PAPER_WINS[(t, s)].get(m))
+                                               for m in ("baseline", "mlp", "moe")])
+    return ([f"## Table II: mean score J over {preset.n_test} uniform test designs (cm obstacle, deg ramp)", "",
+             "Cells: ours [95 % bootstrap CI over the test designs] (paper). The paper gives no uncertainty.", ""]
             + md_table(["task", "space", "baseline design", "baseline policy", "e2e MLP", "e2e MoE", "GES"], means)
             + ["'baseline design' = the baseline design's own policy at the baseline design (1 design); "
                "'baseline policy' = that policy on the test designs (not in the paper).", "",
                f"### Peaks found by TPE ({preset.tpe_trials} trials maximising each method's J)", ""]
             + md_table(["task", "space", "method", "peak J", "peak design", "paper's peak design"], peaks)
-            + ["### Head-to-head: % of test designs where GES scores higher; cells: ours (paper) [ties, ours]", ""]
+            + ["### Head-to-head: GES against each baseline on the same test designs", "",
+               "Cells: mean difference GES - baseline [95 % paired-bootstrap CI], Wilcoxon signed-rank p; % of "
+               "designs where GES scores higher [95 % CI] (paper's %), % ties.", ""]
             + md_table(["task", "space", "vs baseline policy", "vs e2e MLP", "vs e2e MoE"], wins_rows))
 
 
@@ -1086,19 +1184,19 @@ def report_table3(table3: dict, preset: Preset) -> list:
     rows = []
     for init, r in table3.items():
         paper_mean, paper_min, paper_max = PAPER_TABLE3.get(init, (None, None, None))
-        rows.append([init, cell(r["mean"], paper_mean), cell(r["min"], paper_min, "{:.0f}"),
+        rows.append([init, cell_ci(r["scores"], paper_mean), cell(r["min"], paper_min, "{:.0f}"),
                      cell(r["max"], paper_max, "{:.0f}"), r["rounds"], f"{r['coverage']:.1%}"])
     return ([f"## Table III: GES initialisation (K = {preset.K_d2}, obstacle, D2, {preset.n_test} test designs, cm)",
-             ""] + md_table(["init", "mean", "min", "max", "GES rounds", "final coverage"], rows))
+             ""] + md_table(["init", "mean [95 % CI] (paper)", "min", "max", "GES rounds", "final coverage"], rows))
 
 
 def report_ksens(ksens: dict) -> list:
     best = max(ksens, key=lambda k: ksens[k]["mean"])
-    rows = [[K, f"{r['mean']:.1f}", f"{r['std']:.1f}", f"{r['min']:.0f}", f"{r['max']:.0f}", r["rounds"],
+    rows = [[K, mean_ci(r["scores"]), f"{r['std']:.1f}", f"{r['min']:.0f}", f"{r['max']:.0f}", r["rounds"],
              f"{r['coverage']:.1%}"] for K, r in ksens.items()]
     return (["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
              f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", ""]
-            + md_table(["K", "mean", "std", "min", "max", "GES rounds", "final coverage"], rows))
+            + md_table(["K", "mean [95 % CI]", "std", "min", "max", "GES rounds", "final coverage"], rows))
 
 
 def report_ges_runs(ges_runs: dict) -> list:
@@ -1125,6 +1223,60 @@ def report_figures(figures: dict) -> list:
             + [f"- {k}: [{v}]({v})" for k, v in figures["files"].items()] + [""])
 
 
+def ges_comparisons(table2: dict, task: str, sp: str) -> dict:
+    """GES against each baseline method of one Table II cell, paired over the same test designs."""
+    c = table2["cells"][f"{task}-{sp}"]
+    return {m: paired_comparison(c["ges"]["scores"], c[m]["scores"], seed=zlib.crc32(f"{task}{sp}{m}".encode()))
+            for m in ("baseline", "mlp", "moe")}
+
+
+def best_of(results: dict, claimed: str) -> str:
+    """The claim 'setting `claimed` scores highest' from paired comparisons on the same test designs:
+    supported if it beats every other (p < 0.05), not supported if any other beats it, else not resolved."""
+    if claimed not in results:
+        return "not measured"
+    cmps = [paired_comparison(results[claimed]["scores"], r["scores"], seed=i) for i, (k, r) in
+            enumerate(results.items()) if k != claimed]
+    verdicts = [verdict(c) for c in cmps]
+    if verdicts and all(v == "supported" for v in verdicts):
+        return "supported"
+    return "not supported" if "not supported" in verdicts else "not resolved"
+
+
+def report_claims(results: dict) -> list:
+    """Which of the paper's claims this run supports, from this run's numbers only (paired tests, p < 0.05)."""
+    rows = []
+    t2 = results.get("table2")
+    if t2:
+        for m, name in (("mlp", "e2e MLP"), ("moe", "e2e MoE")):
+            for t in TASKS:
+                for s in SPACES:
+                    cmp = ges_comparisons(t2, t, s)[m]
+                    rows.append([f"GES > {name}, {t} {s.upper()}", verdict(cmp),
+                                 f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
+    fig = results.get("figures")
+    if fig:
+        ent = fig["moe_gate_entropy"]
+        rows.append(["the e2e MoE's gate is near uniform (normalised entropy >= 0.9 on Fig. 4's designs, ours)",
+                     "supported" if ent >= 0.9 else "not supported", f"entropy {ent:.2f}"])
+    rows.append(["specialists behave differently (Fig. 5)", "not resolved", "no number; see Fig. 5"])
+    if results.get("table3"):
+        rows.append(["FPS + Lloyd is the best initialisation", best_of(results["table3"], "fps+lloyd"),
+                     "paired against every other init"])
+    if results.get("ksens"):
+        rows.append([f"K = {PAPER_KSENS_PEAK_K} is the best K", best_of(results["ksens"], str(PAPER_KSENS_PEAK_K)),
+                     "paired against every other K"])
+    cost = results.get("cost")
+    if cost:
+        rows.append(["GES co-design costs less wall time than per-design BO",
+                     "supported" if cost["reduction_pct"] > 0 else "not supported",
+                     f"reduction {cost['reduction_pct']:.0f} % (one measurement each, no CI)"])
+    return (["## Which of the paper's claims does this run support?", "",
+             "From this run's numbers only: 'supported' = the claimed difference holds at p < 0.05 (Wilcoxon "
+             "signed-rank, paired over the same test designs), 'not supported' = the opposite holds at p < 0.05, "
+             "'not resolved' = neither.", ""] + md_table(["claim", "verdict", "evidence"], rows))
+
+
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
@@ -1134,6 +1286,8 @@ def report(run: Run, manifest: dict) -> str:
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", report_ksens),
                 ("ges", report_ges_runs), ("cost", report_cost), ("figures", report_figures)]
     lines = report_header(run, manifest)
+    if any(results.values()):
+        lines += report_claims(results)
     for name, write in sections:
         if results[name]:
             lines += write(results[name])
@@ -1157,6 +1311,11 @@ def parse(argv):
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fresh", action="store_true", help="delete this run's earlier results and start over")
+    ap.add_argument("--executor", default="process", choices=("process", "dask"),
+                    help="independent jobs on a local process pool (default) or a Dask cluster")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="Dask scheduler, e.g. tcp://HOST:8786 (default with --executor dask: a local cluster "
+                         "of --workers processes)")
     return ap.parse_args(argv)
 
 
@@ -1170,6 +1329,13 @@ def check_args(args) -> tuple:
         raise BadInput(f"--workers={args.workers} must be >= 1")
     if args.seed < 0:
         raise BadInput(f"--seed={args.seed} must be >= 0")
+    if args.scheduler and args.executor != "dask":
+        raise BadInput(f"--scheduler {args.scheduler} needs --executor dask")
+    if args.executor == "dask":
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            raise BadInput("--executor dask needs the 'distributed' package (pip install distributed)") from None
     return [s for s in STAGES if s in only]
 
 
@@ -1251,13 +1417,15 @@ def main(argv=None) -> int:
         reuse = check_output(out, manifest, args.fresh)
         check_needs(out, stages, reuse)
         manifest = open_output(out, manifest, reuse)
-        run = Run(out, preset, args.seed, args.workers)
+        run = Run(out, preset, args.seed, args.workers, args.executor, args.scheduler)
         t0 = time.time()
-        say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s), output {out}, stages {stages}")
+        say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
+            f"stages {stages}")
         try:
             for name in stages:
                 run_stage(run, name)
         finally:
+            close_dask_clients()
             report(run, manifest)
         say(f"all requested stages done in {time.time() - t0:.1f}s; see {os.path.join(out, 'REPORT.md')}")
         return 0
@@ -1267,4 +1435,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    import run_all   # run as the module `run_all`: jobs then pickle by reference, not by value from __main__ (Dask)
+    sys.exit(run_all.main())

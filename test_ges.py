@@ -1585,6 +1585,62 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
     assert run_all.ges_specialist(run_dir, theta[pick[0]]).policy is not None
 
 
+def test_run_all_uncertainty_against_independent_references():
+    """The bootstrap CI of a mean matches the normal-theory CI for a large sample; the paired comparison's
+    p-value is scipy's Wilcoxon; a planted improvement is 'supported', its mirror 'not supported', noise and
+    all-ties 'not resolved'."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(10, 3, 400)
+    half = 1.96 * x.std(ddof=1) / math.sqrt(len(x))
+    np.testing.assert_allclose(run_all.bootstrap_ci(x), (x.mean() - half, x.mean() + half), atol=0.05 * half)
+    a = x + rng.normal(0.5, 1.0, len(x))
+    cmp = run_all.paired_comparison(a, x)
+    assert cmp["p"] == pytest.approx(stats.wilcoxon(a, x).pvalue) and cmp["diff_lo"] < 0.5 < cmp["diff_hi"]
+    assert cmp["win_pct"] == pytest.approx(100 * np.mean(a > x)) and cmp["win_lo"] < cmp["win_pct"] < cmp["win_hi"]
+    assert run_all.verdict(cmp) == "supported" and run_all.verdict(run_all.paired_comparison(x, a)) == "not supported"
+    assert run_all.verdict(run_all.paired_comparison(x + rng.normal(0, 1, len(x)), x)) == "not resolved"
+    same = run_all.paired_comparison(x, x)
+    assert same["p"] == 1.0 and same["tie_pct"] == 100 and run_all.verdict(same) == "not resolved"
+    table = {"a": {"scores": a.tolist()}, "b": {"scores": x.tolist()}}
+    assert run_all.best_of(table, "a") == "supported" and run_all.best_of(table, "b") == "not supported"
+
+
+def raw_numbers(out: str) -> dict:
+    """Every raw number of a run: score sets, GES states (coverage, territories, probes, winners per round),
+    TPE trials (x, y), and a hash of every policy checkpoint's weights."""
+    import glob
+    import hashlib
+    nums = {}
+    for f in sorted(glob.glob(os.path.join(out, "scores", "*.json"))):
+        nums[os.path.relpath(f, out)] = json.load(open(f))["scores"]
+    for f in sorted(glob.glob(os.path.join(out, "ges", "*", "state.json"))):
+        nums[os.path.relpath(f, out)] = [{k: h[k] for k in ("coverage", "mu", "sigma", "probes_unit", "winner")}
+                                         for h in json.load(open(f))["history"]]
+    for f in sorted(glob.glob(os.path.join(out, "tpe", "*.json"))):
+        nums[os.path.relpath(f, out)] = [(t["x"], t["y"]) for t in json.load(open(f))["trials"]]
+    for f in sorted(glob.glob(os.path.join(out, "**", "*.pt"), recursive=True)):
+        weights = torch.load(f, weights_only=False)["policy"]
+        nums[os.path.relpath(f, out)] = hashlib.sha1(b"".join(v.numpy().tobytes() for v in weights.values())).hexdigest()
+    return nums
+
+
+def test_run_all_on_a_local_dask_cluster_gives_the_same_numbers(smoke_run, tmp_path):
+    """The smoke preset on a 2-process local Dask cluster (`--executor dask`) gives exactly the raw numbers of
+    the inline run with the same seed: every score, GES territory, TPE trial and policy checkpoint."""
+    out = str(tmp_path / "dask")
+    assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "2", "--seed", "3",
+                         "--executor", "dask"]) == 0
+    mine, ref = raw_numbers(out), raw_numbers(smoke_run)
+    assert mine.keys() == ref.keys() and len(ref) >= 50   # 55 in the smoke preset
+    assert [k for k in ref if mine[k] != ref[k]] == []
+
+
+def test_run_all_scheduler_needs_the_dask_executor(tmp_path, capsys):
+    assert run_all.main(["--preset", "smoke", "--out", str(tmp_path / "x"), "--scheduler", "tcp://h:8786"]) == 2
+    assert "--scheduler tcp://h:8786 needs --executor dask" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
 def test_run_all_small_rules():
     for task in ("obstacle", "ramp"):
         for lv in range(ballu.MAX_LEVEL + 1):
