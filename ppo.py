@@ -546,6 +546,12 @@ def load_policy(path: str) -> PolicyFn:
 # "before" is what the project trained with before issue 16 (PPOConfig defaults, initial mean action 0.5).
 PROTOCOL_SETTINGS = {
     "before": {"init_action_mean": 0.5},
+    # candidates to screen (1 M steps, one seed, one task), each one lever of issue 16 changed from "before":
+    "no_entropy": {"init_action_mean": 0.5, "entropy_coef": 0.0},              # the std no longer widens for free
+    "fewer_epochs": {"init_action_mean": 0.5, "epochs": 2, "minibatches": 2},  # 4 gradient steps per batch, not 20
+    "big_batch": {"init_action_mean": 0.5, "num_steps": 128, "minibatches": 2},  # 4,096 samples per update
+    "spread_start": {"init_action_mean": 0.5, "start_level": "spread"},        # levels 0..the score's start level
+    "unscaled_reward": {"init_action_mean": 0.5, "reward_dt_scale": False},   # the authors' fork's reward scale
 }
 PROTOCOL_DESIGN_SEED = 16   # the 12 held-out D2 designs: the same for every setting, task and seed
 
@@ -559,6 +565,8 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     os.makedirs(folder, exist_ok=True)
     changes = dict(setting)
     start_level = changes.pop("start_level", 0)
+    if start_level == "spread":   # each lane starts at a uniform level up to the one the score J starts from
+        start_level = (0, ballu.SCORE_START_LEVEL[task])
     ppo_fields = set(asdict(base_cfg))
     cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
@@ -590,9 +598,11 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
 
 
 def _mean_se(values) -> str:
+    """'mean +- standard error' over seeds (one seed: the value alone)."""
     v = np.asarray(values, dtype=float)
-    se = v.std(ddof=1) / math.sqrt(len(v)) if len(v) > 1 else float("nan")
-    return f"{v.mean():.1f} +- {se:.1f}"
+    if len(v) == 1:
+        return f"{v[0]:.1f}"
+    return f"{v.mean():.1f} +- {v.std(ddof=1) / math.sqrt(len(v)):.1f}"
 
 
 def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(0, 1, 2),
