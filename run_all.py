@@ -256,6 +256,9 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 #   - scores: 24 test designs x (16 Table II + 8 Table III / Fig. 7 sets) + 2 x 45 x 4 probes + 12 TPE
 #     searches x 12 trials + 1 per-design BO trial (800k + J), extrapolated to 12        ~ 40 min
 # Measured: see README (the preset's wall time per stage is in REPORT.md).
+# n_test (issue 17): the paired 95 % CI of GES - e2e MLP (obstacle D2) has half-width ~1.96 sd / sqrt(n). In the
+# committed quick run (slewed servo, docs/quick/test_scores.csv) sd = 5.2 cm, so +-2 cm needs n >= 27 (24 gave
+# +-2.1; obstacle D3: sd 6.6 cm, n >= 42). To be re-planned with the presets on the new simulator's rates.
 QUICK = Preset("quick", ppo_steps=800_000, ges_round_steps=60_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=24, tpe_trials=12, tpe_startup=6, K_d2=3, K_d3=6, ges_max_rounds=2,
                ges_target_coverage=0.95, ges_probes=4, ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000,
