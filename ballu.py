@@ -979,8 +979,6 @@ def shared_pool(workers: int) -> WorkerPool:
         if pool is not None:
             pool.close()
         pool = _SHARED_POOLS[workers] = WorkerPool(workers)
-        if len(_SHARED_POOLS) == 1:
-            atexit.register(close_shared_pools)
     return pool
 
 
@@ -988,6 +986,9 @@ def close_shared_pools():
     for pool in _SHARED_POOLS.values():
         pool.close()
     _SHARED_POOLS.clear()
+
+
+atexit.register(close_shared_pools)
 
 
 # what a VecBallu worker does with the BalluEnv in its state

@@ -197,7 +197,7 @@ def method_J(run: Run, method: str, task: str, sp: str, label: str = ""):
     """J(theta) of a method on designs of its task/space: (d,) -> float, (n, d) -> (n,)."""
     space = space_of(run.preset, task, sp)
     if method == "ges":
-        return ges_J(run.path("ges", ges_name(task, sp, run.K(sp), "fps+lloyd")), task, space, run.preset,
+        return ges_J(run.path("ges", run.main_ges(task, sp)), task, space, run.preset,
                      run.workers, label)
     return PolicyJ(load_policy(run, method, task, sp), space, task, run.preset, run.workers, label)
 
@@ -434,6 +434,10 @@ class Run:
     def K(self, sp: str) -> int:
         return self.preset.K_d2 if sp == "d2" else self.preset.K_d3
 
+    def main_ges(self, task: str, sp: str) -> str:
+        """Name of a cell's main GES run: K of its space, the paper's FPS + Lloyd initialisation."""
+        return ges_name(task, sp, self.K(sp), "fps+lloyd")
+
     def test_designs(self, task: str, sp: str) -> np.ndarray:
         """The held-out uniform test designs of a task/space, the same for every method."""
         rng = np.random.default_rng(derive_seed(self.seed, "test", task, sp))
@@ -566,7 +570,7 @@ def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = N
     Fig. 7 (K = K_d2) share the main obstacle D2 run's scores instead of scoring it three times."""
     if method != "ges":
         return f"test-{task}-{sp}-{method}"
-    return f"test-{task}-{sp}-ges-{ges_run or ges_name(task, sp, run.K(sp), 'fps+lloyd')}"
+    return f"test-{task}-{sp}-ges-{ges_run or run.main_ges(task, sp)}"
 
 
 def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
@@ -730,7 +734,7 @@ def stage_cost(run: Run) -> dict:
     p = run.preset
     t, s = p.cost_task, p.cost_space
     space = space_of(p, t, s)
-    ges_summary = read_json(run.path("stages", "ges.json"))["result"][ges_name(t, s, run.K(s), "fps+lloyd")]
+    ges_summary = read_json(run.path("stages", "ges.json"))["result"][run.main_ges(t, s)]
     router = read_json(run.path("stages", "table2.json"))["result"]["peaks"][f"{t}-{s}-ges"]
 
     os.makedirs(run.path("tpe"), exist_ok=True)
@@ -809,7 +813,7 @@ def fig_experts(run: Run, path: str) -> tuple:
     theta = distinct_designs(space, 10, derive_seed(run.seed, "fig4"))
     full = space.full(theta)
     gate = load_policy(run, "moe", t, s).gate_weights(ballu.normalise_design(full).astype(np.float32))
-    res = ges.load_result(run.path("ges", ges_name(t, s, run.K(s), "fps+lloyd")))
+    res = ges.load_result(run.path("ges", run.main_ges(t, s)))
     ks = res.route(theta)
     hard = np.eye(len(res.ckpt))[ks]
     ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
@@ -855,8 +859,7 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
     space = space_of(run.preset, "obstacle", "d2")
     peak = t2["peaks"]["obstacle-d2-ges"]["peak_design"]
     full = space.full([peak[n] for n in space.names])
-    experts = [ppo.load_policy(c) for c in ges.load_result(run.path("ges", ges_name("obstacle", "d2", run.K("d2"),
-                                                                                    "fps+lloyd"))).ckpt]
+    experts = [ppo.load_policy(c) for c in ges.load_result(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
     fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     dt = ballu.BalluConfig().control_dt
     for k, expert in enumerate(experts):
@@ -973,7 +976,7 @@ def stage_figures(run: Run) -> dict:
     figs["fig5"] = fig_toes(run, t2, os.path.join(fdir, "fig5_toe_heights.png"))
     for t in TASKS:
         for s in SPACES:
-            name = ges_name(t, s, run.K(s), "fps+lloyd")
+            name = run.main_ges(t, s)
             figs[f"fig6-{t}-{s}"] = ges.plot_territories(read_json(run.path("ges", name, ges.HISTORY_FILE)),
                                                           os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
     figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
@@ -982,7 +985,7 @@ def stage_figures(run: Run) -> dict:
         s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
         pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
         theta = [pk["peak_design"][n] for n in space.names]
-        policy = ges_specialist(run.path("ges", ges_name(t, s, run.K(s), "fps+lloyd")), theta)
+        policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta)
         figs[f"fig1-{t}"] = ballu.motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
                                                level_of(t, pk["peak"]), space.full(theta)[0])
     cdir = os.path.join(fdir, "curves")
@@ -1071,8 +1074,7 @@ def paired_comparison(a, b, seed: int = 0) -> dict:
     win_lo, win_hi = np.quantile(100 * (d[idx] > 0).mean(axis=1), q)
     p = float(wilcoxon(a, b).pvalue) if np.any(d != 0) else 1.0
     return {"diff": float(d.mean()), "diff_lo": float(diff_lo), "diff_hi": float(diff_hi), "p": p,
-            "win_pct": float(100 * np.mean(d > 0)), "win_lo": float(win_lo), "win_hi": float(win_hi),
-            "tie_pct": float(100 * np.mean(d == 0))}
+            "win_lo": float(win_lo), "win_hi": float(win_hi), **wins(a, b)}
 
 
 def verdict(cmp: dict, alpha: float = 0.05) -> str:

@@ -1582,7 +1582,9 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
     alone = [ballu.score(ppo.load_policy(res.ckpt[ks[i]]), space.full(theta[i]), "obstacle",
                          episodes=preset.score_episodes)[0] for i in pick]
     np.testing.assert_array_equal(J, alone)
-    assert run_all.ges_specialist(run_dir, theta[pick[0]]).policy is not None
+    obs = np.random.default_rng(2).normal(size=(5, ballu.OBS_DIM)).astype(np.float32)
+    np.testing.assert_array_equal(run_all.ges_specialist(run_dir, theta[pick[0]])(obs),   # Figs. 1 and 5's pick
+                                  ppo.load_policy(res.ckpt[ks[pick[0]]])(obs))
 
 
 def test_run_all_uncertainty_against_independent_references():
