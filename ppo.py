@@ -45,6 +45,7 @@ class PPOConfig:
     desired_kl: float = 0.01           # [facts] adaptive-KL target
     clip: float = 0.2                  # [facts]
     entropy_coef: float = 0.01         # [facts]
+    max_std: float = 0.0               # [ours] > 0: the action std is held <= this after each step (0 = free)
     value_coef: float = 1.0            # [ours] (rsl_rl's default)
     epochs: int = 5                    # [facts]
     minibatches: int = 4               # [facts]
@@ -233,6 +234,9 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
             loss.backward()
             nn.utils.clip_grad_norm_(policy.parameters(), cfg.max_grad_norm)
             opt.step()
+            if cfg.max_std > 0:   # bounded log-std: a projection, so the std cannot run away
+                with torch.no_grad():
+                    policy.log_std.clamp_(max=math.log(cfg.max_std))
             for k, v in (("kl", kl), ("policy_loss", policy_loss.item()), ("value_loss", value_loss.item()),
                          ("entropy", entropy.item())):
                 stats[k].append(v)
@@ -552,6 +556,10 @@ PROTOCOL_SETTINGS = {
     "big_batch": {"init_action_mean": 0.5, "num_steps": 128, "minibatches": 2},  # 4,096 samples per update
     "spread_start": {"init_action_mean": 0.5, "start_level": "spread"},        # levels 0..the score's start level
     "unscaled_reward": {"init_action_mean": 0.5, "reward_dt_scale": False},   # the authors' fork's reward scale
+    "max_std": {"init_action_mean": 0.5, "max_std": 0.5},                     # std held <= its start value
+    # several levers at once (a guess made before the screen, to see whether they add up)
+    "combo": {"init_action_mean": 0.5, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2,
+              "epochs": 3, "start_level": "spread"},
 }
 PROTOCOL_DESIGN_SEED = 16   # the 12 held-out D2 designs: the same for every setting, task and seed
 
