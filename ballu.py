@@ -1189,9 +1189,12 @@ def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_lev
     one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` episodes per design; the level after the last one is the score, in cm (obstacle) or
     degrees (ramp). [facts]  With workers > 1 the designs are split over the long-lived `shared_pool`, each
     worker playing its lanes with its own copy of the policy (no round trip per step, no process start-up per
-    call). A lane's trajectory is the same in any world or worker, so J does not depend on the worker count
-    (for a learned policy evaluated row by row, as ppo.PolicyFn is). With `final_x`, also each episode's final
-    pelvis x (n, episodes) in m (NaN for a blown-up episode).
+    call). The split follows world boundaries (`cfg.lanes_per_world` designs
+    each, in order): a lane's trajectory can depend on which lanes share its PyBullet world (measured: a pump
+    gait's pelvis at level 10 ended at x = 1.7518 m with three world-mates, 1.7562 m with two), so each design
+    keeps its world-mates, and J does not depend on the worker count (for a learned policy evaluated row by
+    row, as ppo.PolicyFn is); it may depend on which designs share the call. With `final_x`, also each
+    episode's final pelvis x (n, episodes) in m (NaN for a blown-up episode).
     """
     cfg = replace(cfg or BalluConfig(), task=task)
     d = check_design(designs, what="designs")
@@ -1200,7 +1203,9 @@ def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_lev
         raise ValueError(f"episodes={episodes!r} must be an integer >= 1")
     if not 0 <= start <= MAX_LEVEL:
         raise ValueError(f"start_level={start!r} must lie in [0, {MAX_LEVEL}]")
-    parts = [ids for ids in np.array_split(np.arange(len(d)), min(workers, len(d))) if len(ids)]
+    B, worlds = max(1, cfg.lanes_per_world), -(-len(d) // max(1, cfg.lanes_per_world))
+    parts = [np.arange(w[0] * B, min((w[-1] + 1) * B, len(d)))
+             for w in np.array_split(np.arange(worlds), min(workers, worlds)) if len(w)]
     part = getattr(policy, "for_lanes", None)   # a policy with per-lane settings hands each worker its part
     args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, episodes)
             for ids in parts]

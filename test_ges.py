@@ -653,6 +653,21 @@ def test_score_in_workers_equals_score_in_one_process():
     assert ballu.shared_pool(2) is ballu.shared_pool(2)
 
 
+def test_score_splits_workers_along_worlds_so_world_mates_stay():
+    """A lane's trajectory can depend on its PyBullet world-mates once robots reach the box (here the first
+    lane's x moved 4 mm when its world held 3 instead of 4 lanes), so score splits the designs over workers
+    along world boundaries: 5 designs = worlds of 4 + 1, the same with 1 or 2 workers."""
+    rng = np.random.default_rng(4)
+    designs = np.column_stack([np.full((5, 2), 0.45), rng.uniform(0.75, 0.9, 5), rng.uniform(0.001, 0.1, 5)])
+    runs = []
+    for workers in (1, 2):
+        pump = ballu.PumpGait([40, 36, 40, 32, 40], ["sync", "sync", "alternate", "sync", "sync"])
+        runs.append(ballu.score(pump, designs, "obstacle", episodes=1, start_level=10, workers=workers,
+                                final_x=True)[1])
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert runs[0][0, 0] > 1.0                      # the first robot did get past the box (contact physics)
+
+
 @pytest.mark.parametrize("argv, msg", [(["--steps", "-5"], "--steps -5 must be >= 1"),
                                        (["--envs", "2", "--workers", "3"], "--workers 3 must be in [1, --envs 2]"),
                                        (["--rollout", "0"], "--rollout 0 must be >= 1"),
