@@ -503,11 +503,12 @@ def level_score(task: str, level):
     return 100.0 * h if task == "obstacle" else np.degrees(np.arctan(h / 1.5))
 
 
-def curriculum_update(task: str, level, final_x):
-    """Up one level past `up`, down one short of `down`, clipped to 0..74. [facts]"""
+def curriculum_update(task: str, level, final_x, step=1):
+    """Up one level past `up`, down one short of `down`, clipped to 0..74. [facts]  `step` (a scalar or one per
+    lane) moves that many levels instead: score's bisection schedule (`level_steps`) uses it. [ours]"""
     g = task_geometry(task)
-    level = np.asarray(level) + (np.asarray(final_x) > g["up"]) - (np.asarray(final_x) < g["down"])
-    return np.clip(level, 0, MAX_LEVEL)
+    move = (np.asarray(final_x) > g["up"]).astype(np.int64) - (np.asarray(final_x) < g["down"])
+    return np.clip(np.asarray(level) + np.asarray(step) * move, 0, MAX_LEVEL)
 
 
 def surface_height(task: str, x, level):
@@ -612,6 +613,7 @@ class BalluEnv:
         self._tmp = tempfile.TemporaryDirectory(prefix="ballu_urdf_")
         self.designs = np.tile(BASELINE, (n, 1))
         self.levels = np.zeros(n, dtype=np.int64)
+        self.level_step = 1              # levels a finished episode moves (score sets one per lane to bisect)
         self.bodies = [-1] * n
         self.terrain = [-1] * n
         self._terrain_level = np.full(n, -1)
@@ -831,7 +833,7 @@ class BalluEnv:
                 "episode_level": self.levels.copy(), "blowup": blowup}
         if done.any():
             if self.curriculum:   # a blown-up episode does not move the level (it says nothing of skill)
-                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]))
+                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]), self.level_step)
                 self.levels = np.where(truncated, moved, self.levels)
             for i in np.flatnonzero(done):
                 if blowup[i]:
@@ -1151,12 +1153,13 @@ class PumpGait:
         return np.broadcast_to(np.stack(np.broadcast_arrays(left, right), -1), (len(obs), ACT_DIM)).copy()
 
 
-def _score_open(state, policy, designs, lane_ids, cfg, start, episodes):
-    """Scoring, step 1 (in a worker, or in this process with a local `state`): a fresh env, one lane per design."""
-    n = len(designs)
+def _score_open(state, policy, designs, lane_ids, cfg, start, steps):
+    """Scoring, step 1 (in a worker, or in this process with a local `state`): a fresh env, one lane per design;
+    `steps[e]` = levels episode e moves (see score's `level_steps`)."""
+    n, episodes = len(designs), len(steps)
     env = BalluEnv(n, cfg, lane_ids=lane_ids, curriculum=True)
     obs, _ = env.reset(seed=0, options={"designs": designs, "levels": np.full(n, start)})
-    state["score"] = {"env": env, "policy": policy, "obs": obs, "count": np.zeros(n, dtype=int),
+    state["score"] = {"env": env, "policy": policy, "obs": obs, "count": np.zeros(n, dtype=int), "steps": steps,
                       "final": np.full(n, -1), "x": np.full((n, episodes), np.nan)}
 
 
@@ -1166,6 +1169,7 @@ def _score_play(state, episodes, until):
     s = state["score"]
     env, policy, count, final, x = s["env"], s["policy"], s["count"], s["final"], s["x"]
     while (np.minimum(count, episodes) < until).any():
+        env.level_step = s["steps"][np.minimum(count, episodes - 1)]   # each lane's current episode's step
         s["obs"], _, _, _, info = env.step(policy(s["obs"]))
         done = info["_final_obs"] & (count < episodes)
         x[done, count[done]] = info["final_x"][done]
@@ -1181,33 +1185,62 @@ def _score_close(state):
         s["env"].close()
 
 
-def score(policy, designs, task: str = "obstacle", episodes: int = 20, start_level: int | None = None,
-          workers: int = 1, cfg: BalluConfig | None = None, progress=None, final_x: bool = False):
+SCORE_EPISODES = 20                                   # [facts] episodes of the score J
+
+
+def check_level_steps(level_steps, episodes: int | None) -> np.ndarray:
+    """score's schedule as an int array (levels each episode moves), from `level_steps` or `episodes` unit steps."""
+    if level_steps is None:
+        episodes = SCORE_EPISODES if episodes is None else episodes
+        if not isinstance(episodes, (int, np.integer)) or isinstance(episodes, bool) or episodes < 1:
+            raise ValueError(f"episodes={episodes!r} must be an integer >= 1")
+        return np.ones(episodes, dtype=np.int64)
+    steps = list(level_steps) if isinstance(level_steps, (list, tuple, np.ndarray)) else None
+    if not steps or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 1 <= v <= MAX_LEVEL
+                            for v in steps):
+        raise ValueError(f"level_steps={level_steps!r} must be None or a non-empty sequence of integers in "
+                         f"[1, {MAX_LEVEL}] (levels each episode moves up or down)")
+    if episodes is not None and episodes != len(steps):
+        raise ValueError(f"episodes={episodes!r} must be None or len(level_steps)={len(steps)}")
+    return np.array(steps, dtype=np.int64)
+
+
+def score(policy, designs, task: str = "obstacle", episodes: int | None = None, start_level: int | None = None,
+          workers: int = 1, cfg: BalluConfig | None = None, progress=None, final_x: bool = False,
+          level_steps=None):
     """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
 
     The policy (any picklable callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy;
-    one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` episodes per design; the level after the last one is the score, in cm (obstacle) or
-    degrees (ramp). [facts]  With workers > 1 the designs are split over the long-lived `shared_pool`, each
-    worker playing its lanes with its own copy of the policy (no round trip per step, no process start-up per
-    call). The split follows world boundaries (`cfg.lanes_per_world` designs
+    one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` (default 20)
+    episodes per design, each moving the lane's level one up or down; the level after the last one is the
+    score, in cm (obstacle) or degrees (ramp). [facts]  With workers > 1 the designs are split over the
+    long-lived `shared_pool`, each worker playing its lanes with its own copy of the policy (no round trip per
+    step, no process start-up per call). The split follows world boundaries (`cfg.lanes_per_world` designs
     each, in order): a lane's trajectory can depend on which lanes share its PyBullet world (measured: a pump
     gait's pelvis at level 10 ended at x = 1.7518 m with three world-mates, 1.7562 m with two), so each design
     keeps its world-mates, and J does not depend on the worker count (for a learned policy evaluated row by
     row, as ppo.PolicyFn is); it may depend on which designs share the call. With `final_x`, also each
     episode's final pelvis x (n, episodes) in m (NaN for a blown-up episode).
+
+    `level_steps` (e.g. (16, 8, 4, 2, 1, 1, 1)): a bisection over levels instead, episode e moving
+    level_steps[e] levels up or down; episodes = len(level_steps). [ours]  Why: the unit walk ends near the
+    level where the policy starts failing, reached one level per 20 s episode; halving steps reach it in
+    ~log2(range) episodes, then a few unit steps settle it as the unit walk does. (16, 8, 4, 2, 1, 1, 1)
+    reaches +-33 levels (the unit walk: +-20) in 7 episodes, ~3x cheaper. Meant for GES's probes; the paper's
+    J (tables, test designs) keeps the unit steps. None (default) = unit steps, exactly the facts' J.
     """
     cfg = replace(cfg or BalluConfig(), task=task)
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
-    if not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise ValueError(f"episodes={episodes!r} must be an integer >= 1")
+    steps = check_level_steps(level_steps, episodes)
+    episodes = len(steps)
     if not 0 <= start <= MAX_LEVEL:
         raise ValueError(f"start_level={start!r} must lie in [0, {MAX_LEVEL}]")
     B, worlds = max(1, cfg.lanes_per_world), -(-len(d) // max(1, cfg.lanes_per_world))
     parts = [np.arange(w[0] * B, min((w[-1] + 1) * B, len(d)))
              for w in np.array_split(np.arange(worlds), min(workers, worlds)) if len(w)]
     part = getattr(policy, "for_lanes", None)   # a policy with per-lane settings hands each worker its part
-    args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, episodes)
+    args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, steps)
             for ids in parts]
     call = (InProcess() if len(parts) == 1 else shared_pool(len(parts))).call
     try:

@@ -216,6 +216,80 @@ def test_stand_scores_low_and_curriculum_moves_down():
     np.testing.assert_allclose(s, ballu.level_score("obstacle", 8))
 
 
+def test_score_level_steps_of_ones_is_the_unit_step_J_and_steps_move_the_simulator():
+    """level_steps=None and an all-ones schedule of length 20 give episodes=20's J and trajectories to the last
+    bit; a schedule moves the real env by its steps (1 s episodes: every lane ends short of the box)."""
+    cfg = replace(BalluConfig(), episode_steps=20)
+    torch.manual_seed(5)
+    policy = ppo.PolicyFn(ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, ppo.PPOConfig()),
+                          ppo.RunningNorm(ballu.OBS_DIM))
+    designs = [BASELINE, D_MID]
+    ref, x_ref = ballu.score(policy, designs, "obstacle", episodes=20, start_level=30, cfg=cfg, final_x=True)
+    assert np.unique(x_ref).size > 2                                   # the lanes and episodes did differ
+    for kw in ({}, {"level_steps": None}, {"level_steps": [1] * 20}, {"level_steps": (1,) * 20, "episodes": 20}):
+        j, x = ballu.score(policy, designs, "obstacle", start_level=30, cfg=cfg, final_x=True, **kw)
+        np.testing.assert_array_equal(j, ref)
+        np.testing.assert_array_equal(x, x_ref)
+    j, x = ballu.score(policy, designs, "obstacle", start_level=30, cfg=cfg, final_x=True, level_steps=(16, 8, 4))
+    assert x.shape == (2, 3) and (x < 0.5).all()
+    np.testing.assert_allclose(j, ballu.level_score("obstacle", 30 - 16 - 8 - 4))
+
+
+class ThresholdEnv:
+    """Stands in for BalluEnv inside ballu.score: a policy whose success threshold is known. Each step is a
+    whole episode; lane i's pelvis ends past `up` below level T[i], in the stay band at T[i] (if `stay`) and
+    short of `down` above it. (No scripted BALLU gait has a clean threshold: a pump gait ends pressed against
+    the box face, in the stay band, at some levels and short of it at others.)"""
+    T, stay = np.array([0]), False
+
+    def __init__(self, n, cfg, lane_ids=None, curriculum=True):
+        self.task, self.level_step, self.T = cfg.task, 1, ThresholdEnv.T[lane_ids]
+
+    def reset(self, seed=None, options=None):
+        self.levels = np.asarray(options["levels"]).copy()
+        return np.zeros((len(self.levels), ballu.OBS_DIM)), {}
+
+    def step(self, actions):
+        g, n = ballu.task_geometry(self.task), len(self.levels)
+        at = (self.levels == self.T) & self.stay
+        x = np.where(self.levels < self.T, g["up"] + 0.1, np.where(at, (g["up"] + g["down"]) / 2, g["down"] - 0.1))
+        self.levels = ballu.curriculum_update(self.task, self.levels, x, self.level_step)   # as BalluEnv.step
+        done = np.ones(n, dtype=bool)
+        return np.zeros((n, ballu.OBS_DIM)), np.zeros(n), ~done, done, {"_final_obs": done, "final_x": x,
+                                                                           "levels": self.levels.copy()}
+
+    def close(self):
+        pass
+
+
+@pytest.mark.parametrize("task", ballu.TASKS)
+def test_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, task):
+    """The bisection (16, 8, 4, 2, 1, 1, 1) (7 episodes) ends within one level of the 20-episode J for every
+    threshold the unit walk can reach (start +-19: not range-limited), with or without a stay band there."""
+    start = ballu.SCORE_START_LEVEL[task]
+    T = np.arange(start - 19, start + 20)
+    monkeypatch.setattr(ballu, "BalluEnv", ThresholdEnv)
+    monkeypatch.setattr(ThresholdEnv, "T", T)
+    designs = np.tile(BASELINE, (len(T), 1))
+    for stay in (False, True):
+        monkeypatch.setattr(ThresholdEnv, "stay", stay)
+        unit = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task)]
+        half = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task,
+                                                                level_steps=(16, 8, 4, 2, 1, 1, 1))]
+        assert np.abs(np.subtract(unit, T)).max() <= 1 and np.abs(np.subtract(half, unit)).max() <= 1, (unit, half)
+    short = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task, level_steps=(8, 4, 2, 1))]
+    assert np.abs(np.subtract(short, unit)).max() > 1      # a schedule reaching +-15 cannot follow every threshold
+
+
+def test_score_level_steps_bad_input_raises_clear_errors():
+    for bad in ((), (0,), (1, 75), (2.5,), "8421", (True,), [[1]], 3):
+        with pytest.raises(ValueError, match=r"level_steps=.* must be None or a non-empty sequence of integers "
+                                             r"in \[1, 74\]"):
+            ballu.score(ballu.stand, BASELINE, level_steps=bad)
+    with pytest.raises(ValueError, match=r"episodes=20 must be None or len\(level_steps\)=3"):
+        ballu.score(ballu.stand, BASELINE, episodes=20, level_steps=(4, 2, 1))
+
+
 def test_episode_limits_and_info():
     cfg = replace(BalluConfig(), episode_steps=5)
     env = BalluEnv(2, cfg)
