@@ -1,6 +1,7 @@
 """run_all.py -- one command that regenerates every table and figure of the GES paper with our code.
 
     python run_all.py [--preset smoke|quick|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S] [--fresh]
+    python run_all.py --probe-agreement CKPT,CKPT,... [--task obstacle] [--designs 20] [--level-steps 16,8,...]
 
 Read top to bottom:
   1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
@@ -57,7 +58,7 @@ import ppo
 import tpe
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-RESULTS_FORMAT = 1   # bump when what a stage computes or stores changes: old result folders are then refused
+RESULTS_FORMAT = 2   # bump when what a stage computes or stores changes: old result folders are then refused
 
 # ----------------------------------------------------------------------------------------------------------
 # 1. The co-design of BALLU (paper Sec. IV): tasks, spaces, methods; training a policy; GES's train and score
@@ -133,28 +134,43 @@ class TrainSpecialist:
             env.close()
 
 
+def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, label: str = "",
+                 probe: bool = False, trace: dict | None = None) -> np.ndarray:
+    """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
+    count: ballu.score splits the designs along PyBullet worlds, and learned policies run row by row).
+
+    The one home of how a run scores: the preset's episodes from its start level (the task's, or smoke's
+    `score_start_level`); probe=True: GES's probe score, the preset's `probe_level_steps` schedule if it has
+    one (tables and test designs keep the paper's J). `trace` (a dict) receives each design's per-episode
+    final pelvis x (None for a blown-up episode) under its full design's bytes: score sets store trajectories,
+    not only levels, so runs that should be equal are compared on more than a few coarse levels."""
+    steps = preset.probe_level_steps if probe else None
+    j, x = ballu.score(policy, designs_full, task, episodes=None if steps else preset.score_episodes,
+                       start_level=preset.score_start_level, level_steps=steps,
+                       workers=max(1, min(workers, len(designs_full))), progress=Throttled(label) if label else None,
+                       final_x=True)
+    if trace is not None:
+        trace.update({np.asarray(d, float).tobytes(): [float(v) if np.isfinite(v) else None for v in row]
+                      for d, row in zip(designs_full, x)})
+    return j
+
+
 @dataclass
 class ScoreSpecialist:
-    """GES score_fn (ges.py contract): the paper's J of specialist k's deterministic policy on each design (one
-    lane each). Inside GES's rounds the specialists are scored side by side, one process each (workers=1)."""
+    """GES score_fn (ges.py contract): J of specialist k's deterministic policy on each design (one lane each).
+    GES's probes (probe=True) may use the preset's cheaper schedule; the router's J (test designs, TPE) is the
+    paper's. Inside GES's rounds the specialists are scored side by side, one process each (workers=1)."""
     task: str
     space: ballu.DesignSpace
-    episodes: int
+    preset: Preset
     workers: int = 1
     label: str = ""
+    probe: bool = False
+    trace: dict | None = None   # see score_policy (in-process callers only)
 
     def __call__(self, k, ckpt, designs):
-        return ballu.score(ppo.load_policy(ckpt), self.space.full(designs), self.task, episodes=self.episodes,
-                           workers=max(1, min(self.workers, len(designs))),
-                           progress=Throttled(f"{self.label} specialist {k}") if self.label else None)
-
-
-def score_policy(policy, designs_full, task, preset: Preset, workers: int, label: str) -> np.ndarray:
-    """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
-    count: a lane's trajectory is the same in any world or worker, and learned policies run row by row)."""
-    w = max(1, min(workers, len(designs_full)))
-    return ballu.score(policy, designs_full, task, episodes=preset.score_episodes, workers=w,
-                       progress=Throttled(label) if label else None)
+        return score_policy(ppo.load_policy(ckpt), self.space.full(designs), self.task, self.preset, self.workers,
+                            f"{self.label} specialist {k}" if self.label else "", self.probe, self.trace)
 
 
 @dataclass
@@ -166,18 +182,20 @@ class PolicyJ:
     preset: Preset
     workers: int = 1
     label: str = ""
+    trace: dict | None = None   # see score_policy
 
     def __call__(self, theta):
-        out = score_policy(self.policy, self.space.full(theta), self.task, self.preset, self.workers, self.label)
+        out = score_policy(self.policy, self.space.full(theta), self.task, self.preset, self.workers, self.label,
+                           trace=self.trace)
         return float(out[0]) if np.ndim(theta) == 1 else out
 
 
 def ges_J(run_dir: str, task: str, space: ballu.DesignSpace, preset: Preset, workers: int = 1,
-          label: str = "") -> ges.RoutedEvaluator:
+          label: str = "", trace: dict | None = None) -> ges.RoutedEvaluator:
     """J(theta) of GES (paper Sec. IV-C): the density router (eq. 10) hands each design to the specialist whose
-    Gaussian is densest there, and that specialist plays it."""
-    return ges.routed_evaluator(ges.load_result(run_dir), ScoreSpecialist(task, space, preset.score_episodes,
-                                                                          workers, label))
+    Gaussian is densest there, and that specialist plays it (the paper's J, never the probe schedule)."""
+    return ges.routed_evaluator(ges.load_result(run_dir), ScoreSpecialist(task, space, preset, workers, label,
+                                                                          trace=trace))
 
 
 def ges_specialist(run_dir: str, theta):
@@ -193,13 +211,13 @@ def load_policy(run: Run, method: str, task: str, sp: str):
     return ppo.load_policy(run.path("policies", f"{method}-{task}-{sp}", "policy.pt"))
 
 
-def method_J(run: Run, method: str, task: str, sp: str, label: str = ""):
+def method_J(run: Run, method: str, task: str, sp: str, label: str = "", trace: dict | None = None):
     """J(theta) of a method on designs of its task/space: (d,) -> float, (n, d) -> (n,)."""
     space = space_of(run.preset, task, sp)
     if method == "ges":
         return ges_J(run.path("ges", run.main_ges(task, sp)), task, space, run.preset,
-                     run.workers, label)
-    return PolicyJ(load_policy(run, method, task, sp), space, task, run.preset, run.workers, label)
+                     run.workers, label, trace)
+    return PolicyJ(load_policy(run, method, task, sp), space, task, run.preset, run.workers, label, trace)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -235,15 +253,30 @@ class Preset:
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
     ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
     ges_warm_start: bool = False  # ours, quick only: specialists start from their cell's e2e MLP (paper: random init)
+    score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
+    probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
+
+
+# A bisection over curriculum levels for GES's probe scores (ours; ballu.score's `level_steps`): reaches +-33
+# levels (the 20-episode J: +-20) in 7 episodes, ~3x cheaper. Not in a preset until `--probe-agreement` shows it
+# agrees with the 20-episode J (issue 17: same winner >= 80 %, rank correlation >= 0.9).
+BISECTION = (16, 8, 4, 2, 1, 1, 1)
 
 
 # smoke: the whole pipeline with tiny budgets (the numbers mean nothing) to check that every stage, table and
 # figure works: 128 PPO steps per policy, 2 GES rounds x 2 probes, 3 test designs, 3 TPE trials, 1 episode per
 # score. Measured here (2 cores, both busy with other training): ~65 s with --workers 1, ~80 s with 2.
+# Its scores must still tell runs apart (ours, issue 17): scoring is ~90 % of its time, so each score stays one
+# episode, but from level 2, not 28/40: these barely trained policies never clear 28 cm and end 0.4-0.7 m in,
+# so from 28 every J was 27.1 cm; at 2 cm a lane ending in the stay band (0.5-1.0 m) keeps its level, and J
+# differs by design and policy. Probes use a one-episode schedule of 2 levels (exercises probe_level_steps).
+# Each score set also stores every episode's final pelvis x: the equality tests compare trajectories.
+# Wall time, measured before / after this change with a PPO training on both cores: 142 / 141 s (--workers 1).
 SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollout=16, score_episodes=1,
                n_test=3, tpe_trials=3, tpe_startup=2, K_d2=3, K_d3=6, ges_max_rounds=2, ges_target_coverage=0.95,
                ges_probes=2, ges_probe_pool=50, ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3),
-               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2)
+               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
+               probe_level_steps=(2,))
 
 # quick: every table and figure in about 2 h on this 2-core machine, with budgets set by what PPO needs here.
 # PPO on BALLU needs ~300k-800k control steps before its curriculum moves and 2-4 M to reach the J of the
@@ -542,7 +575,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
 
     warm = policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt" if p.ges_warm_start else ""
     res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm),
-                      ScoreSpecialist(task, space, p.score_episodes), run_dir, config,
+                      ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
     return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
             "rounds": res.rounds, "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
@@ -574,12 +607,16 @@ def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = N
 
 
 def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
-    """Score a set of designs once (`compute()` -> scores); kept in scores/<key>.json (a resumable unit)."""
+    """Score a set of designs once (`compute(trace)` -> scores, filling `trace` as score_policy does); kept in
+    scores/<key>.json with each design's per-episode final pelvis x (a resumable unit)."""
     path = run.path("scores", f"{key}.json")
     if os.path.exists(path):
         return np.array(read_json(path)["scores"])
-    s = np.asarray(compute(), dtype=float)
-    write_json(path, {"scores": s.tolist(), "designs": np.asarray(designs_full).tolist()})
+    trace = {}
+    s = np.asarray(compute(trace), dtype=float)
+    full = np.asarray(designs_full, dtype=float)
+    write_json(path, {"scores": s.tolist(), "designs": full.tolist(),
+                      "final_x": [trace[d.tobytes()] for d in full]})
     kill_hook(f"scores:{key}")
     return s
 
@@ -643,13 +680,14 @@ def stage_table2(run: Run) -> dict:
     units = [(t, s, m) for t in TASKS for s in SPACES for m in METHODS]
     prog = Progress("score sets", len(units) + len(TASKS), every=0)
     for i, t in enumerate(TASKS):   # the "baseline design" column: the baseline policy at the baseline design
-        s = cached_scores(run, f"design-{t}", lambda: score_policy(load_policy(run, "baseline", t, "d2"),
-                          ballu.BASELINE[None], t, run.preset, 1, f"design-{t}"), ballu.BASELINE[None])
+        s = cached_scores(run, f"design-{t}", lambda tr: score_policy(load_policy(run, "baseline", t, "d2"),
+                          ballu.BASELINE[None], t, run.preset, 1, f"design-{t}", trace=tr), ballu.BASELINE[None])
         out["design"][t] = float(s[0])
         prog(i + 1, f"baseline design {t}")
     for i, (t, s, m) in enumerate(units):
         theta, key = run.test_designs(t, s), score_key(run, t, s, m)
-        sc = cached_scores(run, key, lambda: method_J(run, m, t, s, key)(theta), space_of(run.preset, t, s).full(theta))
+        sc = cached_scores(run, key, lambda tr: method_J(run, m, t, s, key, tr)(theta),
+                           space_of(run.preset, t, s).full(theta))
         out["cells"].setdefault(f"{t}-{s}", {})[m] = {"mean": float(sc.mean()), "std": float(sc.std()),
                                                       "min": float(sc.min()), "max": float(sc.max()),
                                                       "scores": sc.tolist()}
@@ -682,8 +720,8 @@ def ges_test_scores(run: Run, name: str) -> np.ndarray:
     """A GES run's routed score on the obstacle D2 test designs (shared with Table II)."""
     space, theta = space_of(run.preset, "obstacle", "d2"), run.test_designs("obstacle", "d2")
     key = score_key(run, "obstacle", "d2", "ges", name)
-    return cached_scores(run, key, lambda: ges_J(run.path("ges", name), "obstacle", space, run.preset, run.workers,
-                                                 key)(theta), space.full(theta))
+    return cached_scores(run, key, lambda tr: ges_J(run.path("ges", name), "obstacle", space, run.preset,
+                                                    run.workers, key, tr)(theta), space.full(theta))
 
 
 def summary(s: np.ndarray) -> dict:
@@ -760,6 +798,65 @@ def stage_cost(run: Run) -> dict:
             "ges_tpe_s": router["seconds"], "ges_s": ges_total,
             "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
             "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"]}
+
+
+# --- the probe score against the paper's J (issue 17, item 1; not a stage: run by the lead when the CPU is free) -
+PROBE_BAR = {"same_winner_pct": 80.0, "spearman": 0.9}   # issue 17's bar for using a cheaper probe score in GES
+
+
+def probe_winners(J: np.ndarray) -> np.ndarray:
+    """Per design (column), the checkpoint (row) GES's probe argmax picks: the highest J, ties -> the lowest
+    index, as ges.ges_round does (facts). Agreement is measured on what decides the territories."""
+    return np.argmax(J, axis=0)
+
+
+def probe_agreement(ckpts: list, task: str = "obstacle", n_designs: int = 20, level_steps=BISECTION,
+                    episodes: int = ballu.SCORE_EPISODES, seed: int = 0, workers: int = 1, progress=say) -> dict:
+    """Does a probe schedule rank like the paper's J? Scores `n_designs` uniform D2 designs with each of the K
+    checkpoints both ways, the full J (`episodes` unit steps) and the probe J (`level_steps`), and returns the
+    share of designs where both pick the same winner (probe_winners' tie rule; the share of designs with a tie
+    is returned too, since ties inflate agreement), Spearman's rank correlation over all K x n (design,
+    checkpoint) pairs (NaN if one way scored every pair alike) and each way's wall time."""
+    from scipy.stats import spearmanr
+    space = ballu.d2(task)   # Table I bounds
+    full = space.full(space.sample_uniform(np.random.default_rng(derive_seed(seed, "probe-agreement", task)),
+                                           n_designs))
+    ways = {"full": {"episodes": episodes}, "probe": {"level_steps": tuple(level_steps)}}
+    J = {w: np.zeros((len(ckpts), n_designs)) for w in ways}
+    seconds = {w: 0.0 for w in ways}
+    for k, ckpt in enumerate(ckpts):
+        policy = ppo.load_policy(ckpt)
+        for w, kw in ways.items():
+            t0 = time.time()
+            J[w][k] = ballu.score(policy, full, task, workers=max(1, min(workers, n_designs)), **kw)
+            seconds[w] += time.time() - t0
+            progress(f"probe agreement: checkpoint {k + 1}/{len(ckpts)} {w} J done ({seconds[w]:.0f} s so far)")
+    win = {w: probe_winners(J[w]) for w in ways}
+    constant = any(np.ptp(J[w]) == 0 for w in ways)
+    rho = float("nan") if constant else float(spearmanr(J["full"].ravel(), J["probe"].ravel())[0])
+    return {"task": task, "designs": full.tolist(), "ckpts": list(ckpts), "episodes": episodes,
+            "level_steps": list(level_steps), "J_full": J["full"].tolist(), "J_probe": J["probe"].tolist(),
+            "same_winner_pct": float(100 * np.mean(win["full"] == win["probe"])),
+            "tie_pct": {w: float(100 * np.mean((J[w] == J[w].max(axis=0)).sum(axis=0) > 1)) for w in ways},
+            "spearman": rho, "seconds": seconds}
+
+
+def probe_agreement_text(r: dict) -> str:
+    """The measurement in a few lines, against issue 17's bar."""
+    K, n = len(r["ckpts"]), len(r["designs"])
+    ok = r["same_winner_pct"] >= PROBE_BAR["same_winner_pct"] and r["spearman"] >= PROBE_BAR["spearman"]
+    full_s, probe_s = r["seconds"]["full"], r["seconds"]["probe"]
+    return "\n".join([
+        f"probe agreement, {r['task']}: {n} uniform D2 designs x {K} checkpoints; full J = {r['episodes']} unit "
+        f"steps, probe J = level steps {r['level_steps']}",
+        f"  same winner (highest J, ties -> lowest index as GES's probe argmax): {r['same_winner_pct']:.1f} % "
+        f"(bar >= {PROBE_BAR['same_winner_pct']:.0f} %); designs with a tie: full {r['tie_pct']['full']:.1f} %, "
+        f"probe {r['tie_pct']['probe']:.1f} %",
+        f"  Spearman rank correlation over all {K * n} (design, checkpoint) pairs: "
+        + (f"{r['spearman']:.3f}" if np.isfinite(r["spearman"]) else "undefined (one way scored every pair alike)")
+        + f" (bar >= {PROBE_BAR['spearman']})",
+        f"  wall time: full J {full_s:.0f} s, probe J {probe_s:.0f} s ({full_s / max(probe_s, 1e-9):.1f}x faster)",
+        f"  issue 17's bar: {'met' if ok else 'NOT met'}"])
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1136,8 +1233,16 @@ def report_header(run: Run, manifest: dict) -> list:
                if p.ges_warm_start else "") +
             f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
             f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
-            f"trials ({p.tpe_startup} random first); episodes per score J: {p.score_episodes} (paper: 20); "
-            f"design bounds: {p.ranges}", ""]
+            f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}", ""]
+
+
+def score_text(p: Preset) -> str:
+    """How this preset scores, in the report's words (start level and probe schedule when they are ours)."""
+    facts = " / ".join(f"{v} ({t})" for t, v in ballu.SCORE_START_LEVEL.items())
+    start = f"{p.score_start_level} (ours; facts: {facts})" if p.score_start_level is not None else facts
+    probe = (f"; GES probes scored with level steps {list(p.probe_level_steps)} (ours; paper: the 20-episode J)"
+             if p.probe_level_steps else "")
+    return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
 
 
 def report_table1(table1: dict) -> list:
@@ -1321,7 +1426,37 @@ def parse(argv):
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="Dask scheduler, e.g. tcp://HOST:8786 (default with --executor dask: a local cluster "
                          "of --workers processes)")
+    ap.add_argument("--probe-agreement", default=None, metavar="CKPT,CKPT,...",
+                    help="instead of stages: score --designs uniform D2 designs with each checkpoint by the full J "
+                         "and by the probe schedule; print the same-winner share, rank correlation and wall times")
+    ap.add_argument("--task", default="obstacle", help="with --probe-agreement: obstacle or ramp")
+    ap.add_argument("--designs", type=int, default=20, help="with --probe-agreement: designs (default 20)")
+    ap.add_argument("--level-steps", default=",".join(map(str, BISECTION)),
+                    help=f"with --probe-agreement: the probe schedule (default {','.join(map(str, BISECTION))})")
+    ap.add_argument("--episodes", type=int, default=ballu.SCORE_EPISODES,
+                    help=f"with --probe-agreement: episodes of the full J (default {ballu.SCORE_EPISODES})")
     return ap.parse_args(argv)
+
+
+def check_probe_args(args) -> dict:
+    """--probe-agreement's arguments as probe_agreement's keywords; BadInput names what is wrong."""
+    ckpts = [c for c in args.probe_agreement.split(",") if c]
+    missing = [c for c in ckpts if not os.path.isfile(c)]
+    if len(ckpts) < 2 or missing:
+        raise BadInput(f"--probe-agreement needs >= 2 existing checkpoints, comma-separated; got {len(ckpts)}"
+                       + (f", missing: {missing}" if missing else ""))
+    if args.task not in TASKS:
+        raise BadInput(f"--task {args.task} must be one of {TASKS}")
+    if min(args.designs, args.workers, args.episodes) < 1 or args.seed < 0:
+        raise BadInput(f"--designs {args.designs}, --workers {args.workers}, --episodes {args.episodes} must be "
+                       f">= 1 and --seed {args.seed} >= 0")
+    try:
+        steps = tuple(ballu.check_level_steps(tuple(int(s) for s in args.level_steps.split(",")), None).tolist())
+    except ValueError:
+        raise BadInput(f"--level-steps {args.level_steps} must be comma-separated integers in "
+                       f"[1, {ballu.MAX_LEVEL}]") from None
+    return {"ckpts": ckpts, "task": args.task, "n_designs": args.designs, "level_steps": steps,
+            "episodes": args.episodes, "seed": args.seed, "workers": args.workers}
 
 
 def check_args(args) -> tuple:
@@ -1415,6 +1550,9 @@ def main(argv=None) -> int:
     preset = PRESETS[args.preset]
     out = os.path.abspath(args.out or os.path.join(HERE, "results", preset.name))
     try:
+        if args.probe_agreement is not None:
+            print(probe_agreement_text(probe_agreement(**check_probe_args(args))), flush=True)
+            return 0
         stages = check_args(args)
         manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
                     "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed, "code_hash": code_hash(),

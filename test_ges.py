@@ -4,6 +4,8 @@ Run: pytest -q test_ges.py
 """
 import csv as csv_module
 import functools
+import glob
+import hashlib
 import json
 import math
 import os
@@ -264,8 +266,8 @@ class ThresholdEnv:
 
 @pytest.mark.parametrize("task", ballu.TASKS)
 def test_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, task):
-    """The bisection (16, 8, 4, 2, 1, 1, 1) (7 episodes) ends within one level of the 20-episode J for every
-    threshold the unit walk can reach (start +-19: not range-limited), with or without a stay band there."""
+    """run_all.BISECTION (7 episodes) ends within one level of the 20-episode J for every threshold the unit walk
+    can reach (start +-19: not range-limited), with or without a stay band at the threshold."""
     start = ballu.SCORE_START_LEVEL[task]
     T = np.arange(start - 19, start + 20)
     monkeypatch.setattr(ballu, "BalluEnv", ThresholdEnv)
@@ -275,7 +277,7 @@ def test_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, ta
         monkeypatch.setattr(ThresholdEnv, "stay", stay)
         unit = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task)]
         half = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task,
-                                                                level_steps=(16, 8, 4, 2, 1, 1, 1))]
+                                                                level_steps=run_all.BISECTION)]
         assert np.abs(np.subtract(unit, T)).max() <= 1 and np.abs(np.subtract(half, unit)).max() <= 1, (unit, half)
     short = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task, level_steps=(8, 4, 2, 1))]
     assert np.abs(np.subtract(short, unit)).max() > 1      # a schedule reaching +-15 cannot follow every threshold
@@ -1587,6 +1589,15 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
             s = np.array(cell[m]["scores"])
             assert len(s) == run_all.SMOKE.n_test and np.isfinite(s).all(), (key, m)
     assert all(np.isfinite(p["peak"]) and p["trials"] == run_all.SMOKE.tpe_trials for p in t2["peaks"].values())
+    # numbers that tell runs apart (issue 17): the obstacle J differs between designs / policies (from level 2;
+    # from 28 every J was 27.1 cm), and every score set keeps each episode's final pelvis x, all different
+    obstacle_J = [v for key, cell in t2["cells"].items() if key.startswith("obstacle") for m in run_all.METHODS
+                  for v in cell[m]["scores"]]
+    assert len(set(obstacle_J)) > 1, obstacle_J
+    sets = [json.load(open(f)) for f in glob.glob(os.path.join(smoke_run, "scores", "*.json"))]
+    final_x = [row for s in sets for row in s["final_x"]]
+    assert all(len(row) == run_all.SMOKE.score_episodes for row in final_x)
+    assert len({row[0] for row in final_x}) == len(final_x) == sum(len(s["scores"]) for s in sets)
     assert set(res["stages"]["table3"]) == set(run_all.SMOKE.table3_inits)
     assert set(res["stages"]["ksens"]) == {str(k) for k in run_all.SMOKE.ksens_K}
     cost = res["stages"]["cost"]
@@ -1619,6 +1630,8 @@ def test_run_all_killed_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monk
     assert run_all.main(args) == 0
     a, b = (json.load(open(os.path.join(d, "results.json")))["stages"] for d in (smoke_run, out))
     assert _numbers_only(a) == _numbers_only(b)
+    mine, ref = raw_numbers(out), raw_numbers(smoke_run)   # every J and final x, GES state, TPE trial, policy
+    assert mine.keys() == ref.keys() and [k for k in ref if mine[k] != ref[k]] == []
     assert _report_numbers(os.path.join(smoke_run, "REPORT.md")) == _report_numbers(os.path.join(out,
                                                                                                 "REPORT.md"))
     # the killed GES run repeated its interrupted round and continued the specialists' PPO step counts
@@ -1669,7 +1682,7 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
     pick = np.concatenate([np.flatnonzero(ks == k)[:1] for k in np.unique(ks)])[:3]   # one design per specialist
     J = run_all.ges_J(run_dir, "obstacle", space, preset)(theta[pick])
     alone = [ballu.score(ppo.load_policy(res.ckpt[ks[i]]), space.full(theta[i]), "obstacle",
-                         episodes=preset.score_episodes)[0] for i in pick]
+                         episodes=preset.score_episodes, start_level=preset.score_start_level)[0] for i in pick]
     np.testing.assert_array_equal(J, alone)
     obs = np.random.default_rng(2).normal(size=(5, ballu.OBS_DIM)).astype(np.float32)
     np.testing.assert_array_equal(run_all.ges_specialist(run_dir, theta[pick[0]])(obs),   # Figs. 1 and 5's pick
@@ -1697,19 +1710,19 @@ def test_run_all_uncertainty_against_independent_references():
 
 
 def raw_numbers(out: str) -> dict:
-    """Every raw number of a run: score sets, GES states (coverage, territories, probes, winners per round),
-    TPE trials (x, y), and a hash of every policy checkpoint's weights."""
-    import glob
-    import hashlib
+    """Every raw number of a run: score sets (J and every episode's final pelvis x), GES states (coverage,
+    territories, probes, winners per round), TPE trials (x, y), and a hash of every policy checkpoint's weights
+    (the standalone policies' policy.pt and every GES specialist's round checkpoints)."""
     nums = {}
     for f in sorted(glob.glob(os.path.join(out, "scores", "*.json"))):
-        nums[os.path.relpath(f, out)] = json.load(open(f))["scores"]
+        nums[os.path.relpath(f, out)] = {k: json.load(open(f))[k] for k in ("scores", "final_x")}
     for f in sorted(glob.glob(os.path.join(out, "ges", "*", "state.json"))):
         nums[os.path.relpath(f, out)] = [{k: h[k] for k in ("coverage", "mu", "sigma", "probes_unit", "winner")}
                                          for h in json.load(open(f))["history"]]
     for f in sorted(glob.glob(os.path.join(out, "tpe", "*.json"))):
         nums[os.path.relpath(f, out)] = [(t["x"], t["y"]) for t in json.load(open(f))["trials"]]
-    for f in sorted(glob.glob(os.path.join(out, "**", "*.pt"), recursive=True)):
+    for f in sorted(glob.glob(os.path.join(out, "**", "*.pt"), recursive=True)
+                    + glob.glob(os.path.join(out, "ges", "*", "ckpt", "*.ckpt"))):
         weights = torch.load(f, weights_only=False)["policy"]
         nums[os.path.relpath(f, out)] = hashlib.sha1(b"".join(v.numpy().tobytes() for v in weights.values())).hexdigest()
     return nums
@@ -1722,7 +1735,7 @@ def test_run_all_on_a_local_dask_cluster_gives_the_same_numbers(smoke_run, tmp_p
     assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "2", "--seed", "3",
                          "--executor", "dask"]) == 0
     mine, ref = raw_numbers(out), raw_numbers(smoke_run)
-    assert mine.keys() == ref.keys() and len(ref) >= 50   # 55 in the smoke preset
+    assert mine.keys() == ref.keys() and len(ref) >= 100   # 111 in the smoke preset
     assert [k for k in ref if mine[k] != ref[k]] == []
 
 
@@ -1742,3 +1755,65 @@ def test_run_all_small_rules():
     assert run_all.cell(12.345, None) == "12.3 (-)" and run_all.cell(None, 36.9) == "- (36.9)"
     for p in run_all.PRESETS.values():   # GES budgets must fit the per-policy budget's meaning
         assert p.ges_round_steps * p.ges_max_rounds <= p.ppo_steps * 1.01 and p.cost_trials <= p.tpe_trials
+        ballu.check_level_steps(p.probe_level_steps, None)   # a valid probe schedule, or None
+        assert p.score_start_level is None or 0 <= p.score_start_level <= ballu.MAX_LEVEL
+    assert run_all.PAPER.probe_level_steps is None and run_all.PAPER.score_start_level is None   # the paper's J
+
+
+class Grab(Exception):
+    """Carries what a monkeypatched function was called with out of the code under test."""
+
+
+def test_run_all_probe_schedule_scores_ges_probes_only(monkeypatch, tmp_path):
+    """The preset's probe schedule reaches ballu.score only through GES's probe score_fn; the router's J (test
+    designs, TPE) and single policies keep the paper's episodes and the preset's start level."""
+    seen = []
+
+    def fake_score(policy, designs, task, **kw):
+        seen.append(kw)
+        return np.zeros(len(designs)), np.zeros((len(designs), 1))
+
+    monkeypatch.setattr(ballu, "score", fake_score)
+    monkeypatch.setattr(ppo, "load_policy", lambda ckpt: ballu.stand)
+    p = replace(run_all.QUICK, probe_level_steps=run_all.BISECTION, score_start_level=3)
+    space = run_all.space_of(p, "obstacle", "d2")
+    theta = space.sample_uniform(np.random.default_rng(0), 2)
+    run_all.ScoreSpecialist("obstacle", space, p, probe=True)(0, "ckpt", theta)
+    run_all.ScoreSpecialist("obstacle", space, p)(0, "ckpt", theta)
+    trace = {}
+    run_all.PolicyJ(ballu.stand, space, "obstacle", p, trace=trace)(theta)
+    assert [(s["level_steps"], s["episodes"], s["start_level"]) for s in seen] == [
+        (run_all.BISECTION, None, 3), (None, 20, 3), (None, 20, 3)]
+    assert list(trace.values()) == [[0.0], [0.0]] and list(trace) == [d.tobytes() for d in space.full(theta)]
+
+    def grab(space, train_fn, score_fn, *args, **kw):
+        raise Grab(score_fn)
+
+    monkeypatch.setattr(ges, "run_ges", grab)
+    with pytest.raises(Grab) as e:
+        run_all.ges_run(run_all.Run(str(tmp_path), p, 0, 1), "obstacle", "d2", 3, "fps+lloyd", None)
+    assert e.value.args[0].probe
+
+
+def test_run_all_probe_agreement_runs_on_a_tiny_size(smoke_run, capsys):
+    """--probe-agreement (issue 17's measurement) on 2 designs x 2 smoke policies, 2 episodes against a
+    one-episode schedule: it prints the same-winner share, rank correlation and both wall times. Bad input
+    exits 2 naming the argument."""
+    ckpts = ",".join(os.path.join(smoke_run, "policies", f"{m}-obstacle-d2", "policy.pt") for m in ("mlp", "moe"))
+    assert run_all.main(["--probe-agreement", ckpts, "--designs", "2", "--episodes", "2", "--level-steps", "2",
+                         "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    for text in ("2 uniform D2 designs x 2 checkpoints", "same winner", "Spearman", "wall time: full J",
+                 "issue 17's bar"):
+        assert text in out, text
+    for argv, msg in ((["--probe-agreement", ckpts.split(",")[0]], ">= 2 existing checkpoints"),
+                      (["--probe-agreement", ckpts, "--level-steps", "0,2"], "--level-steps 0,2 must be"),
+                      (["--probe-agreement", ckpts, "--task", "stairs"], "--task stairs must be one of"),
+                      (["--probe-agreement", ckpts, "--designs", "0"], "--designs 0")):
+        assert run_all.main(argv) == 2
+        assert msg in capsys.readouterr().err, msg
+
+
+def test_run_all_probe_winners_tie_rule():
+    J = np.array([[3, 1, 2, 5], [3, 2, 1, 5], [1, 2, 0, 6]])   # rows: checkpoints, columns: designs
+    np.testing.assert_array_equal(run_all.probe_winners(J), [0, 1, 0, 2])   # ties -> lowest index, as GES
