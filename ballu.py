@@ -309,11 +309,13 @@ class BalluConfig:
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    # [ours] lanes per PyBullet world (client), all at the same spot. Speed only: a lane's trajectory is
-    # bit-identical in any world. Bullet's broadphase pairs every overlapping bounding box before the collision
+    # [ours] lanes per PyBullet world (client), all at the same spot, for training. Bullet's broadphase pairs every overlapping bounding box before the collision
     # filter drops the pair, so stacked lanes cost ~B^2; each world costs a fixed overhead per step. 16 lanes
     # on one core, robot-physics-steps/s inside stepSimulation (`python ballu.py --bench`, issue 15): 1 world of
     # 16: 5.0k; 2 x 8: 7.0k; 4 x 4: 8.3k; 8 x 2: 9.0k; 16 x 1: 8.0k (2 and 4 are within the VM's noise).
+    # Not speed only: once robots touch their boxes a lane's trajectory can depend on its world-mates (the
+    # solver's contact order), so `score` gives each design a world of its own; training only needs a fixed
+    # seed and worker count to repeat itself.
     lanes_per_world: int = 4
     # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
@@ -587,7 +589,8 @@ class BalluEnv:
     at y = 0, each with its own terrain body and its own collision-filter bit, so a robot touches only the
     ground plane and its own terrain. Every lane sits at the same coordinates because this chaotic system turns
     floating-point rounding into different trajectories (a lane offset sideways rounds its contacts
-    differently): so a lane's trajectory is bit-identical in any world, alone or with any neighbours. Each lane
+    differently). Without contacts a lane's trajectory is bit-identical in any world, alone or with any
+    neighbours; once robots touch their boxes it can depend on the world-mates (see lanes_per_world). Each lane
     has its own design, curriculum level and random generator (seeded from (seed, lane id)).
 
     Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training), else a
@@ -1215,11 +1218,13 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     episodes per design, each moving the lane's level one up or down; the level after the last one is the
     score, in cm (obstacle) or degrees (ramp). [facts]  With workers > 1 the designs are split over the
     long-lived `shared_pool`, each worker playing its lanes with its own copy of the policy (no round trip per
-    step, no process start-up per call). The split follows world boundaries (`cfg.lanes_per_world` designs
-    each, in order): a lane's trajectory can depend on which lanes share its PyBullet world (measured: a pump
-    gait's pelvis at level 10 ended at x = 1.7518 m with three world-mates, 1.7562 m with two), so each design
-    keeps its world-mates, and J does not depend on the worker count (for a learned policy evaluated row by
-    row, as ppo.PolicyFn is); it may depend on which designs share the call. With `final_x`, also each
+    step, no process start-up per call). Each design gets a PyBullet world of its own (lanes_per_world = 1)
+    [ours, measured]: a lane's trajectory can depend on which lanes share its world once robots touch the box
+    (a pump gait's pelvis at level 10 ended at x = 1.7518 m with three world-mates, 1.7562 m with two; alone
+    in its world, 1.7552 m both ways), and a design's J must not depend on which designs share its call or on
+    the worker count (for a learned policy evaluated row by row, as ppo.PolicyFn is). Cost: ~1 % of the
+    score's time (16 designs, both layouts alternating in one run: 5.90 s against 5.81 s; the bench's layout
+    sweep: 7,022 against 7,551 env steps/s on one core). With `final_x`, also each
     episode's final pelvis x (n, episodes) in m (NaN for a blown-up episode).
 
     `level_steps` (e.g. (16, 8, 4, 2, 1, 1, 1)): a bisection over levels instead, episode e moving
@@ -1229,16 +1234,14 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     reaches +-33 levels (the unit walk: +-20) in 7 episodes, ~3x cheaper. Meant for GES's probes; the paper's
     J (tables, test designs) keeps the unit steps. None (default) = unit steps, exactly the facts' J.
     """
-    cfg = replace(cfg or BalluConfig(), task=task)
+    cfg = replace(cfg or BalluConfig(), task=task, lanes_per_world=1)   # one world per design (above)
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
     steps = check_level_steps(level_steps, episodes)
     episodes = len(steps)
     if not 0 <= start <= MAX_LEVEL:
         raise ValueError(f"start_level={start!r} must lie in [0, {MAX_LEVEL}]")
-    B, worlds = max(1, cfg.lanes_per_world), -(-len(d) // max(1, cfg.lanes_per_world))
-    parts = [np.arange(w[0] * B, min((w[-1] + 1) * B, len(d)))
-             for w in np.array_split(np.arange(worlds), min(workers, worlds)) if len(w)]
+    parts = [ids for ids in np.array_split(np.arange(len(d)), min(workers, len(d))) if len(ids)]
     part = getattr(policy, "for_lanes", None)   # a policy with per-lane settings hands each worker its part
     args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, steps)
             for ids in parts]

@@ -137,7 +137,8 @@ class TrainSpecialist:
 def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, label: str = "",
                  probe: bool = False, trace: dict | None = None) -> np.ndarray:
     """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
-    count: ballu.score splits the designs along PyBullet worlds, and learned policies run row by row).
+    count or on the call's other designs: ballu.score gives each design a PyBullet world of its own, and learned
+    policies run row by row).
 
     The one home of how a run scores: the preset's episodes from its start level (the task's, or smoke's
     `score_start_level`); probe=True: GES's probe score, the preset's `probe_level_steps` schedule if it has

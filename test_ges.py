@@ -729,18 +729,19 @@ def test_score_in_workers_equals_score_in_one_process():
     assert ballu.shared_pool(2) is ballu.shared_pool(2)
 
 
-def test_score_splits_workers_along_worlds_so_world_mates_stay():
-    """A lane's trajectory can depend on its PyBullet world-mates once robots reach the box (here the first
-    lane's x moved 4 mm when its world held 3 instead of 4 lanes), so score splits the designs over workers
-    along world boundaries: 5 designs = worlds of 4 + 1, the same with 1 or 2 workers."""
+def test_score_of_a_design_does_not_depend_on_its_call_mates():
+    """A lane's trajectory can depend on its PyBullet world-mates once robots reach the box (a first lane's x
+    moved 4 mm when its world held 3 instead of 4 lanes), so score gives each design a world of its own: the
+    same trajectories with 1 or 2 workers, and for a design scored with 4 others or with 2."""
     rng = np.random.default_rng(4)
     designs = np.column_stack([np.full((5, 2), 0.45), rng.uniform(0.75, 0.9, 5), rng.uniform(0.001, 0.1, 5)])
-    runs = []
-    for workers in (1, 2):
-        pump = ballu.PumpGait([40, 36, 40, 32, 40], ["sync", "sync", "alternate", "sync", "sync"])
-        runs.append(ballu.score(pump, designs, "obstacle", episodes=1, start_level=10, workers=workers,
-                                final_x=True)[1])
+    periods, modes = [40, 36, 40, 32, 40], ["sync", "sync", "alternate", "sync", "sync"]
+    runs = [ballu.score(ballu.PumpGait(periods, modes), designs, "obstacle", episodes=1, start_level=10,
+                        workers=w, final_x=True)[1] for w in (1, 2)]
+    few = ballu.score(ballu.PumpGait(periods[:3], modes[:3]), designs[:3], "obstacle", episodes=1, start_level=10,
+                      final_x=True)[1]
     np.testing.assert_array_equal(runs[0], runs[1])
+    np.testing.assert_array_equal(runs[0][:3], few)
     assert runs[0][0, 0] > 1.0                      # the first robot did get past the box (contact physics)
 
 
