@@ -584,6 +584,19 @@ def test_ppo_solves_a_point_mass(tmp_path):
     assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
 
 
+@pytest.mark.parametrize("kind", ["mlp", "moe"])
+def test_max_std_bounds_the_action_std_that_the_entropy_bonus_widens(kind, tmp_path):
+    """A large entropy bonus widens the std past 0.5 within a few updates; PPOConfig.max_std = 0.3 holds it
+    at 0.3 (a projection after every optimiser step), for both actor-critics."""
+    stds = {}
+    for max_std in (0.0, 0.3):
+        cfg = ppo.PPOConfig(num_envs=8, num_steps=16, entropy_coef=1.0, lr=1e-2, max_std=max_std, design_dim=1)
+        ck = str(tmp_path / f"{kind}{max_std}.pt")
+        ppo.train(kind, PointMass(8), None, 8 * 16 * 8, ck, cfg, seed=0, progress=None)
+        stds[max_std] = ppo.load_checkpoint(ck)["policy"]["log_std"].exp().max().item()
+    assert stds[0.0] > 0.5 and stds[0.3] <= 0.3 + 1e-6, stds
+
+
 def test_checkpoint_round_trip_and_clear_errors(tmp_path):
     cfg = ppo.PPOConfig(num_envs=8, num_steps=8, design_dim=1)   # the MoE gate reads the last obs entry
     ck = str(tmp_path / "a.pt")
