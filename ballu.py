@@ -309,10 +309,11 @@ class BalluConfig:
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    # [ours] lanes per PyBullet world (client), all at the same spot, for training. Bullet's broadphase pairs every overlapping bounding box before the collision
-    # filter drops the pair, so stacked lanes cost ~B^2; each world costs a fixed overhead per step. 16 lanes
-    # on one core, robot-physics-steps/s inside stepSimulation (`python ballu.py --bench`, issue 15): 1 world of
-    # 16: 5.0k; 2 x 8: 7.0k; 4 x 4: 8.3k; 8 x 2: 9.0k; 16 x 1: 8.0k (2 and 4 are within the VM's noise).
+    # [ours] lanes per PyBullet world (client), all at the same spot, for training. Bullet's broadphase pairs
+    # every overlapping bounding box before the collision filter drops the pair, so stacked lanes cost ~B^2;
+    # each world costs a fixed overhead per step. 16 lanes on one core, robot-physics-steps/s inside
+    # stepSimulation (`python ballu.py --bench`, issue 15): 1 world of 16: 5.0k; 2 x 8: 7.0k; 4 x 4: 8.3k;
+    # 8 x 2: 9.0k; 16 x 1: 8.0k (2 and 4 are within the VM's noise).
     # Not speed only: once robots touch their boxes a lane's trajectory can depend on its world-mates (the
     # solver's contact order), so `score` gives each design a world of its own; training only needs a fixed
     # seed and worker count to repeat itself.
@@ -1162,23 +1163,26 @@ def _score_open(state, policy, designs, lane_ids, cfg, start, steps):
     n, episodes = len(designs), len(steps)
     env = BalluEnv(n, cfg, lane_ids=lane_ids, curriculum=True)
     obs, _ = env.reset(seed=0, options={"designs": designs, "levels": np.full(n, start)})
+    env.level_step = np.full(n, steps[0])   # each lane's current episode's step; moves on as episodes end
     state["score"] = {"env": env, "policy": policy, "obs": obs, "count": np.zeros(n, dtype=int), "steps": steps,
                       "final": np.full(n, -1), "x": np.full((n, episodes), np.nan)}
 
 
-def _score_play(state, episodes, until):
-    """Scoring, step 2: play until every lane has finished `until` of its `episodes` episodes; the level after
-    a lane's last episode is its result (-1 until then). Also returns each episode's final pelvis x."""
+def _score_play(state, until):
+    """Scoring, step 2: play until every lane has finished `until` of its episodes; the level after a lane's
+    last episode is its result (-1 until then). Also returns each episode's final pelvis x."""
     s = state["score"]
-    env, policy, count, final, x = s["env"], s["policy"], s["count"], s["final"], s["x"]
+    env, policy, count, final, x, steps = s["env"], s["policy"], s["count"], s["final"], s["x"], s["steps"]
+    episodes = len(steps)
     while (np.minimum(count, episodes) < until).any():
-        env.level_step = s["steps"][np.minimum(count, episodes - 1)]   # each lane's current episode's step
         s["obs"], _, _, _, info = env.step(policy(s["obs"]))
         done = info["_final_obs"] & (count < episodes)
-        x[done, count[done]] = info["final_x"][done]
-        count += done
-        hit = done & (count == episodes)
-        final[hit] = info["levels"][hit]
+        if done.any():
+            x[done, count[done]] = info["final_x"][done]
+            count += done
+            env.level_step = steps[np.minimum(count, episodes - 1)]   # the next episode's step
+            hit = done & (count == episodes)
+            final[hit] = info["levels"][hit]
     return final.copy(), x.copy()
 
 
@@ -1249,7 +1253,7 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     try:
         call(_score_open, args)
         for until in range(1, episodes + 1):
-            outs = call(_score_play, [(episodes, until)] * len(parts))
+            outs = call(_score_play, [(until,)] * len(parts))
             if progress:
                 progress(f"score {task}: {until * len(d)}/{episodes * len(d)} episodes")
     except BaseException:
