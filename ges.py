@@ -351,15 +351,22 @@ class SerialExecutor(Executor):
         return fut
 
 
-def _map_all(executor: Executor, fn: Callable, arg_lists: list) -> list:
-    """Run fn(*args) for every args on the executor; results in input order (never completion order). Waits
-    for every task before re-raising the first failure, so no task still writes files after we return."""
-    futures = [executor.submit(fn, *args) for args in arg_lists]
+def _timed(fn: Callable, *args) -> tuple:
+    """(fn(*args), seconds), timed where the task runs: the compute a task used, not how long it queued."""
+    start = time.perf_counter()
+    return fn(*args), time.perf_counter() - start
+
+
+def _map_all(executor: Executor, fn: Callable, arg_lists: list) -> tuple[list, list]:
+    """Run fn(*args) for every args on the executor; (results, each task's seconds) in input order (never
+    completion order). Waits for every task before re-raising the first failure, so no task still writes
+    files after we return."""
+    futures = [executor.submit(_timed, fn, *args) for args in arg_lists]
     wait(futures)
     for f in futures:
         if f.exception() is not None:
             raise f.exception()
-    return [f.result() for f in futures]
+    return [f.result()[0] for f in futures], [f.result()[1] for f in futures]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -443,6 +450,7 @@ class GESResult:
     history: dict            # the content of history.json
     rounds: int
     coverage: float
+    task_seconds: float = 0.0   # every train and probe task's own seconds, summed: GES's compute (core-s)
 
     def route(self, theta) -> np.ndarray:
         """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
@@ -454,7 +462,8 @@ def _result(run_dir, space, config, seed, state) -> GESResult:
     return GESResult(space, config, seed, run_dir, mu, sigma, space.from_unit(mu), sigma * (space.hi - space.lo),
                      [os.path.join(run_dir, c) if c else None for c in state["ckpt"]],
                      _history_doc(space, config, seed, state["history"]), state["round"],
-                     state["history"][-1]["coverage"])
+                     state["history"][-1]["coverage"],
+                     float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.get("task_seconds", []))))
 
 
 def load_result(run_dir: str) -> GESResult:
@@ -475,9 +484,9 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     ckpt_out = [os.path.join(CKPT_DIR, f"spec{k}_round{t:02d}.ckpt") for k in range(K)]
     # Train (Alg. 1 lines 8-11): each specialist on its own territory, warm-started (paper).
     samplers = [GaussianSampler(mu[k], sigma[k], space, seed_for(seed, TRAIN, t, k)) for k in range(K)]
-    _map_all(executor, train_fn, [(k, t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
-                                   if state["ckpt"][k] else None, os.path.join(run_dir, ckpt_out[k]))
-                                  for k in range(K)])
+    _, train_s = _map_all(executor, train_fn, [(k, t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
+                                                if state["ckpt"][k] else None, os.path.join(run_dir, ckpt_out[k]))
+                                               for k in range(K)])
     for k in range(K):
         if not os.path.exists(os.path.join(run_dir, ckpt_out[k])):
             raise RuntimeError(f"train_fn did not write ckpt_out for specialist {k} in round {t}")
@@ -485,7 +494,8 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     probes = sample_probes(mu, sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
                            (config.band_lo, config.band_hi))
     designs = space.from_unit(probes)
-    scores = _map_all(executor, score_fn, [(k, os.path.join(run_dir, ckpt_out[k]), designs) for k in range(K)])
+    scores, probe_s = _map_all(executor, score_fn, [(k, os.path.join(run_dir, ckpt_out[k]), designs)
+                                                    for k in range(K)])
     scores = np.stack([np.asarray(s, dtype=float).reshape(-1) for s in scores])
     if scores.shape != (K, len(probes)) or np.isnan(scores).any():
         raise ValueError(f"score_fn must return {len(probes)} non-NaN scores per specialist, got shape "
@@ -500,6 +510,8 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
            "ckpt": ckpt_out, "done": bool(cov >= config.target_coverage or t + 1 >= config.max_rounds)}
     wins = np.bincount(winner, minlength=K)
     new["history"] = state["history"] + [_history_entry(space, new, cov, wins, probes, winner)]
+    # what the round's tasks cost, kept beside (not in) the history, which depends on nothing but the seed
+    new["task_seconds"] = state.get("task_seconds", []) + [{"train": train_s, "probe": probe_s}]
     return new
 
 

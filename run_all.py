@@ -16,7 +16,7 @@ Read top to bottom:
        table2     mean score over test designs, TPE peaks, head-to-head wins       (Table II, Sec. V-B)
        table3     GES with grid / random / fps / fps+lloyd init                     (Table III)
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
-       cost       GES co-design vs per-design BO wall time                          (Sec. V-D, 37 %)
+       cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve
   5. figures
   6. REPORT.md: the paper's numbers (quoted from the tex) and every table with each cell as "ours (paper)",
@@ -582,6 +582,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
     return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
             "rounds": res.rounds, "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
+            "stage1_core_s": res.task_seconds,
             "mu": res.mu.tolist(), "sigma": res.sigma.tolist(), "names": list(space.names)}
 
 
@@ -754,7 +755,7 @@ def stage_ksens(run: Run) -> dict:
 class PerDesignBO:
     """The cost baseline's objective: every TPE trial trains a fresh PPO policy on its one design with the
     per-policy budget (ppo_steps), then scores it. The policy folder is named by the design, so a killed
-    trial resumes its own training."""
+    trial resumes its own training. One process on one core per trial, as every training job of a run."""
     run: Run
     task: str
     space: ballu.DesignSpace
@@ -764,14 +765,21 @@ class PerDesignBO:
         name = hashlib.sha1(np.asarray(theta, dtype=float).tobytes()).hexdigest()[:12]
         ckpt = train_policy(self.run.path("policies", "bo", name), "mlp", self.task, ballu.FixedDesign(full[0]),
                             self.run.preset.ppo_steps, self.run.preset, derive_seed(self.run.seed, "bo", name),
-                            self.run.workers, f"bo {name}")
+                            1, f"bo {name}")
         return PolicyJ(ppo.load_policy(ckpt), self.space, self.task, self.run.preset)(theta)
 
 
 def stage_cost(run: Run) -> dict:
     """GES co-design (stage 1 + TPE with the router) vs per-design BO (TPE, a fresh PPO policy per trial), same
-    machine, same trial count, on the preset's cost task/space (paper: 3D). If cost_trials < tpe_trials, BO
-    time is the measured mean per trial x tpe_trials (said so in the report)."""
+    machine, same trial count, on the preset's cost task/space (paper: 3D). If cost_trials < tpe_trials, BO's
+    cost is the measured mean per trial x tpe_trials (said so in the report).
+
+    Both sides are counted in core-seconds under one layout [ours, issue 17]: every job (a policy's training,
+    a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
+    once as there are workers, and is timed where it runs. The paper compares wall hours on its machine; with
+    jobs of unequal width (before: a BO trial stepping its env on both cores, GES's jobs sharing them) wall
+    times compare layouts, not methods. BO's startup trials are random draws independent of each other, so
+    they run `workers` at a time (tpe.startup_batch: the same trials as one at a time)."""
     p = run.preset
     t, s = p.cost_task, p.cost_space
     space = space_of(p, t, s)
@@ -784,23 +792,25 @@ def stage_cost(run: Run) -> dict:
         say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={trial.y} ({trial.seconds:.0f}s)")
         kill_hook(f"cost:trial{trial.index}")
 
-    study = tpe.optimize(PerDesignBO(run, t, space), space.lo, space.hi, p.cost_trials,
-                         seed=derive_seed(run.seed, "tpe", t, s),
-                         config=tpe.TPEConfig(direction="maximize", n_startup=p.tpe_startup),
-                         path=run.path("tpe", f"{t}-{s}-per-design-bo.json"), names=list(space.names),
-                         callback=after, verbose=False)
+    with run.pool() as ex:
+        study = tpe.optimize(PerDesignBO(run, t, space), space.lo, space.hi, p.cost_trials,
+                             seed=derive_seed(run.seed, "tpe", t, s),
+                             config=tpe.TPEConfig(direction="maximize", n_startup=p.tpe_startup),
+                             path=run.path("tpe", f"{t}-{s}-per-design-bo.json"), names=list(space.names),
+                             callback=after, verbose=False, executor=ex, parallel=max(1, run.workers))
     bo_measured = float(sum(tr.seconds or 0.0 for tr in study.trials))
     bo_total = bo_measured / len(study.trials) * p.tpe_trials
     # with ges_warm_start the e2e MLP the specialists start from is part of GES's cost
     warm_s = (read_json(run.path("stages", "baselines.json"))["result"][f"mlp-{t}-{s}"]["seconds"]
               if p.ges_warm_start else 0.0)
-    ges_total = warm_s + ges_summary["stage1_seconds"] + router["seconds"]
+    stage1 = ges_summary["stage1_core_s"]
+    ges_total = warm_s + stage1 + router["seconds"]
     return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
             "extrapolated": len(study.trials) < p.tpe_trials, "bo_measured_s": bo_measured, "bo_s": bo_total,
-            "ges_warm_start_s": warm_s, "ges_stage1_s": ges_summary["stage1_seconds"],
-            "ges_tpe_s": router["seconds"], "ges_s": ges_total,
+            "ges_warm_start_s": warm_s, "ges_stage1_s": stage1, "ges_tpe_s": router["seconds"], "ges_s": ges_total,
             "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
-            "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"]}
+            "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"],
+            "unit": "core-s"}
 
 
 # --- the probe score against the paper's J (issue 17, item 1; not a stage: run by the lead when the CPU is free) -
@@ -1320,14 +1330,18 @@ def report_ges_runs(ges_runs: dict) -> list:
 def report_cost(cost: dict) -> list:
     extrapolated = (f" (per-design BO: {cost['bo_trials_run']} trials measured, extrapolated to {cost['trials']})"
                     if cost["extrapolated"] else "")
-    rows = [["per-design BO wall time", f"{cost['bo_s']:.0f} s", f"{PAPER_COST['bo_h']:.0f} h"],
-            ["GES co-design wall time (warm-start e2e MLP + stage 1 + TPE with router)",
-             f"{cost['ges_s']:.0f} s ({cost.get('ges_warm_start_s', 0):.0f} + {cost['ges_stage1_s']:.0f} + "
+    unit = cost.get("unit", "s")   # core-s since issue 17's fair layout; older results hold wall seconds
+    rows = [["per-design BO", f"{cost['bo_s']:.0f} {unit}", f"{PAPER_COST['bo_h']:.0f} h"],
+            ["GES co-design (warm-start e2e MLP + stage 1 + TPE with router)",
+             f"{cost['ges_s']:.0f} {unit} ({cost.get('ges_warm_start_s', 0):.0f} + {cost['ges_stage1_s']:.0f} + "
              f"{cost['ges_tpe_s']:.0f})", f"{PAPER_COST['ges_h']:.0f} h (no warm start)"],
-            ["reduction of wall time", f"{cost['reduction_pct']:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"],
+            ["reduction", f"{cost['reduction_pct']:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"],
             ["best J found: per-design BO / GES", f"{cost['bo_peak']:.1f} / {cost['ges_peak']:.1f}", "-"]]
+    layout = (["Ours in core-seconds: every job on one core, as many at once as there are workers, each timed "
+               "where it ran, both sides in this one layout; the paper's in wall hours.", ""] if unit == "core-s"
+              else [])
     return ([f"## Computational cost ({cost['task']}, {cost['space'].upper()}, {cost['trials']} TPE trials, this "
-             f"machine, wall time){extrapolated}", ""] + md_table(["", "ours", "paper"], rows))
+             f"machine){extrapolated}", ""] + layout + md_table(["", "ours", "paper"], rows))
 
 
 def report_figures(figures: dict) -> list:
@@ -1381,7 +1395,7 @@ def report_claims(results: dict) -> list:
                      "paired against every other K"])
     cost = results.get("cost")
     if cost:
-        rows.append(["GES co-design costs less wall time than per-design BO",
+        rows.append(["GES co-design costs less compute than per-design BO",
                      "supported" if cost["reduction_pct"] > 0 else "not supported",
                      f"reduction {cost['reduction_pct']:.0f} % (one measurement each, no CI)"])
     return (["## Which of the paper's claims does this run support?", "",

@@ -1072,6 +1072,12 @@ def test_ges_result_and_history_files(synthetic_run, tmp_path):
     assert os.path.getsize(png) > 20_000
     again = _run(res.run_dir)  # a finished run dir returns its result without training again
     assert again.rounds == res.rounds and again.history == res.history
+    # each round's tasks were timed where they ran (run_all's cost stage adds them up as core-seconds)
+    spent = json.load(open(os.path.join(res.run_dir, "state.json")))["task_seconds"]
+    assert len(spent) == res.rounds and all(len(r["train"]) == len(r["probe"]) == 3 for r in spent)
+    assert res.task_seconds == pytest.approx(sum(sum(r["train"]) + sum(r["probe"]) for r in spent))
+    assert res.task_seconds > 0
+    assert again.task_seconds == res.task_seconds
 
 
 def test_ges_routed_evaluator_density_and_oracle(synthetic_run):
@@ -1385,6 +1391,21 @@ def test_same_seed_same_trials(multivariate):
     assert records(run(3)) != records(run(4))
 
 
+@pytest.mark.parametrize("parallel", [2, 3])
+def test_parallel_startup_trials_equal_the_sequential_study(parallel):
+    """run_all's cost stage runs per-design BO's startup trials one per core: the study must not change,
+    failed trials (which extend the startup) included."""
+    from concurrent.futures import ThreadPoolExecutor
+    cfg = TPEConfig(n_startup=7)
+    seq = optimize(flaky, [0, 0, 0], [1, 1, 1], 14, 3, cfg, verbose=False)
+    with ThreadPoolExecutor(parallel) as ex:
+        par = optimize(flaky, [0, 0, 0], [1, 1, 1], 14, 3, cfg, verbose=False, executor=ex, parallel=parallel)
+    assert records(par) == records(seq)
+    assert sum(not t.ok for t in seq.trials[:9]) >= 1   # a failure fell inside the startup
+    with pytest.raises(ValueError, match="parallel=2 needs an executor"):
+        optimize(flaky, [0], [1], 3, verbose=False, parallel=2)
+
+
 class Interrupt(BaseException):
     """Stands in for a crash / Ctrl-C: not an Exception, so it is not a failed trial."""
 
@@ -1560,8 +1581,8 @@ SMOKE_FIGURES = ["fig1_strip_obstacle.png", "fig1_strip_ramp.png", "fig3_distrib
                  "fig4_expert_contributions.png", "fig5_toe_heights.png", "fig7_k_sensitivity.png",
                  "fig8_design_sensitivity.png"] + [f"fig6_territories_{t}-{s}.png" for t in ("obstacle", "ramp")
                                                    for s in ("d2", "d3")]
-TIMING_FIELDS = {"seconds", "stage1_seconds", "bo_measured_s", "bo_s", "ges_stage1_s", "ges_tpe_s", "ges_s",
-                 "reduction_pct"}
+TIMING_FIELDS = {"seconds", "stage1_seconds", "stage1_core_s", "bo_measured_s", "bo_s", "ges_stage1_s", "ges_tpe_s",
+                 "ges_s", "reduction_pct"}
 
 
 def _numbers_only(obj):
@@ -1574,10 +1595,11 @@ def _numbers_only(obj):
 
 
 def _report_numbers(path):
-    """REPORT.md without the lines that hold wall times or the commit / code hash (which change when someone
-    edits the tree during the test; manifest checks cover them)."""
+    """REPORT.md without the lines that hold wall times, compute times (core-s) and what follows from them (the
+    cost reduction), or the commit / code hash (which change when someone edits the tree during the test;
+    manifest checks cover them)."""
     lines = open(path).read().splitlines()
-    return [ln for ln in lines if not re.search(r"wall|\b\d+ s\b|git commit", ln, re.I)]
+    return [ln for ln in lines if not re.search(r"wall|core-s|reduction|\b\d+ s\b|git commit", ln, re.I)]
 
 
 @pytest.fixture(scope="module")

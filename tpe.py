@@ -281,16 +281,29 @@ class TPE:
     # --- ask -----------------------------------------------------------------
     def suggest(self) -> np.ndarray:
         """Next design to evaluate: random during startup, then the TPE proposal."""
-        rng = np.random.default_rng([self.seed, len(self.trials)])
         ok = [t for t in self.trials if t.ok]
         if len(ok) < self.config.n_startup:
-            return rng.uniform(self.lows, self.highs)
+            return self._startup_point(len(self.trials))
+        rng = np.random.default_rng([self.seed, len(self.trials)])
         good, bad = self.split(ok)
         l = build_parzen(good, self.lows, self.highs, self.config)
         g = build_parzen(bad, self.lows, self.highs, self.config)
         candidates = l.sample(rng, self.config.n_candidates)
         score = l.log_pdf(candidates) - g.log_pdf(candidates)
         return candidates[np.argmax(score)]
+
+    def startup_batch(self, n: int) -> list[np.ndarray]:
+        """Up to n next designs that are random startup draws whatever the pending trials return. Draw i
+        depends only on (seed, i) and a pending trial can only delay the end of startup, so evaluating these in
+        parallel gives exactly the trials of the sequential loop. [ours] For run_all's cost stage: per-design
+        BO's trials run one per core, as every other training job does (issue 17, a fair cost layout)."""
+        n_ok = sum(t.ok for t in self.trials)
+        m = max(0, min(n, self.config.n_startup - n_ok))
+        return [self._startup_point(len(self.trials) + j) for j in range(m)]
+
+    def _startup_point(self, i: int) -> np.ndarray:
+        """Trial i's random startup design: uniform over the box, from (seed, i) alone."""
+        return np.random.default_rng([self.seed, i]).uniform(self.lows, self.highs)
 
     def split(self, ok: list[Trial]) -> tuple[np.ndarray, np.ndarray]:
         """Good/bad designs (each oldest first); ties go to the older trial."""
@@ -375,8 +388,11 @@ def optimize(f: Callable[[np.ndarray], float], lows, highs, n_trials: int, seed:
              config: TPEConfig | None = None, path: str | None = None,
              names: list[str] | None = None,
              callback: Callable[[TPE, Trial], None] | None = None,
-             verbose: bool = True) -> TPE:
+             verbose: bool = True, executor=None, parallel: int = 1) -> TPE:
     """Run f until the study holds n_trials trials and return the study.
+
+    With an `executor` and parallel > 1, the startup trials run `parallel` at a time on it (startup_batch:
+    the same trials as the sequential loop); the TPE proposals after them stay sequential.
 
     n_trials counts trials already in the file at `path`, so re-running the
     same call after a crash finishes the job instead of starting over. An
@@ -384,20 +400,36 @@ def optimize(f: Callable[[np.ndarray], float], lows, highs, n_trials: int, seed:
     KeyboardInterrupt and friends still stop the run (the file is up to date).
     """
     _check_int("n_trials", n_trials, 1)
+    _check_int("parallel", parallel, 1)
+    if parallel > 1 and executor is None:
+        raise ValueError(f"parallel={parallel} needs an executor (a concurrent.futures.Executor)")
     study = TPE(lows, highs, config, seed, names=names, path=path)
     while len(study.trials) < n_trials:
-        x = study.suggest()
-        start = time.perf_counter()
-        try:
-            y, error = float(f(x)), None
-        except Exception as exc:  # a broken design must not kill a long search
-            y, error = None, f"{type(exc).__name__}: {exc}"
-        trial = study.observe(x, y, error=error, seconds=time.perf_counter() - start)
-        if verbose:
-            print(progress_line(study, trial, n_trials), flush=True)
-        if callback is not None:
-            callback(study, trial)
+        batch = study.startup_batch(min(parallel, n_trials - len(study.trials))) if parallel > 1 else []
+        if len(batch) > 1:
+            futures = [executor.submit(timed_call, f, x) for x in batch]
+            outcomes = [fut.result() for fut in futures]
+        else:
+            batch = [study.suggest()]
+            outcomes = [timed_call(f, batch[0])]
+        for x, (y, error, seconds) in zip(batch, outcomes):   # observed in draw order, as the loop would
+            trial = study.observe(x, y, error=error, seconds=seconds)
+            if verbose:
+                print(progress_line(study, trial, n_trials), flush=True)
+            if callback is not None:
+                callback(study, trial)
     return study
+
+
+def timed_call(f: Callable[[np.ndarray], float], x: np.ndarray) -> tuple:
+    """(y, error, seconds) of one trial, timed where it runs. An objective that raises (Exception) is a
+    failed trial: a broken design must not kill a long search."""
+    start = time.perf_counter()
+    try:
+        y, error = float(f(x)), None
+    except Exception as exc:
+        y, error = None, f"{type(exc).__name__}: {exc}"
+    return y, error, time.perf_counter() - start
 
 
 def progress_line(study: TPE, trial: Trial, n_trials: int) -> str:
