@@ -291,7 +291,9 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 #     specialise for 2 rounds x 60k: 45 x 120k                                         =  5.4 M steps  (~25 min)
 #   - scores: 24 test designs x (16 Table II + 8 Table III / Fig. 7 sets) + 2 x 45 x 4 probes + 12 TPE
 #     searches x 12 trials + 1 per-design BO trial (800k + J), extrapolated to 12        ~ 40 min
-# Measured: see README (the preset's wall time per stage is in REPORT.md).
+# Measured: see README (the preset's wall time per stage is in REPORT.md). This arithmetic was made at the old
+# simulator's rates; `python run_all.py --preset quick --plan` redoes it at today's (issue 14's physics is ~4x
+# slower per step): 3.5 h on 2 cores, so the preset is to be re-planned (issue 17, item 5).
 # n_test (issue 17): the paired 95 % CI of GES - e2e MLP (obstacle D2) has half-width ~1.96 sd / sqrt(n). In the
 # committed quick run (slewed servo, docs/quick/test_scores.csv) sd = 5.2 cm, so +-2 cm needs n >= 27 (24 gave
 # +-2.1; obstacle D3: sd 6.6 cm, n >= 42). To be re-planned with the presets on the new simulator's rates.
@@ -306,6 +308,7 @@ QUICK = Preset("quick", ppo_steps=800_000, ges_round_steps=60_000, ppo_envs=32, 
 # machines: --workers uses every core. Work at the quick preset's rates: PPO 10 x 20M + 45 specialists x
 # <= 20 rounds x 1M + 40 BO trials x 20M <= 1.9 G steps (~6 days at 3,500 steps/s); probes 45 x 20 x 100 J x
 # 2.9 core-s ~ 1.5 days on 2 cores; test designs 24 x 1000 J x 2.9 core-s ~ 0.4 day: ~8-9 days on 2 cores.
+# At today's rates (`--plan`, GES at its 20-round cap): ~870 core-hours, ~18 days on 2 cores.
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
                score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
                ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
@@ -313,6 +316,50 @@ PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_env
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=40)
 
 PRESETS = {p.name: p for p in (SMOKE, QUICK, PAPER)}
+
+
+# --- what a preset costs (issue 17, item 5): the arithmetic behind every preset's wall time, in code ---------
+# Per-core rates in control steps/s, one job per core with both cores busy, default simulator (issue 14),
+# measured on this VM on 2026-11-23 with nothing else running: PPO training of an e2e MLP on D2 designs
+# ~1,750-1,930 steps/s on 2 cores (issue 16's screen), the 20-episode J 4.5 s per design on 2 cores
+# (8,000 control steps; `--probe-agreement`).
+TRAIN_RATE, SCORE_RATE = 900.0, 890.0
+
+
+def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
+    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing.
+    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier); the
+    figures stage is left out (seconds)."""
+    p, episode = preset, ballu.BalluConfig().episode_steps
+    J = p.score_episodes * episode                                            # one design's score J
+    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
+
+    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
+        return np.array([sum(K * p.ges_round_steps for K in Ks), 0, sum(K * p.ges_probes * probe_J for K in Ks)]
+                        ) * p.ges_max_rounds
+
+    cells = len(TASKS) * len(SPACES)
+    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
+    work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
+            "ges": ges([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
+            "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J, 0]),
+            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
+            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
+            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0])}
+    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
+                    "hours": (w[0] / train_rate + (w[1] + w[2]) / score_rate) / workers / 3600}
+            for stage, w in work.items()}
+
+
+def plan_text(preset: Preset, workers: int = 2) -> str:
+    rows = plan(preset, workers)
+    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
+             f"steps/s per core (GES at its round cap of {preset.ges_max_rounds}):"]
+    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
+              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
+    total = sum(v["hours"] for v in rows.values())
+    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h ({total * workers:.0f} core-hours)"])
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1433,6 +1480,8 @@ def report(run: Run, manifest: dict) -> str:
 def parse(argv):
     ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
+    ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "
+                    "--workers cores at the measured rates (run_all.TRAIN_RATE, SCORE_RATE), then exit")
     ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(STAGES)}")
     ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
@@ -1567,6 +1616,9 @@ def main(argv=None) -> int:
     preset = PRESETS[args.preset]
     out = os.path.abspath(args.out or os.path.join(HERE, "results", preset.name))
     try:
+        if args.plan:
+            print(plan_text(preset, args.workers), flush=True)
+            return 0
         if args.probe_agreement is not None:
             print(probe_agreement_text(probe_agreement(**check_probe_args(args))), flush=True)
             return 0

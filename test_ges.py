@@ -1850,6 +1850,28 @@ def test_run_all_probe_agreement_runs_on_a_tiny_size(smoke_run, capsys):
         assert msg in capsys.readouterr().err, msg
 
 
+def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
+    """--plan's arithmetic (issue 17: presets planned on measured rates) against what the smoke run did: the
+    standalone policies' PPO steps, and the control steps of every stored score (score sets and TPE trials),
+    with the GES probes at most the plan's round cap."""
+    pl, p = run_all.plan(run_all.SMOKE), run_all.SMOKE
+    ep = ballu.BalluConfig().episode_steps
+    names = [name for name, *_ in run_all.baseline_jobs(run_all.Run(smoke_run, p, 3, 1))]
+    steps = sum(ppo.load_checkpoint(os.path.join(smoke_run, "policies", n, "policy.pt"))["steps"] for n in names)
+    assert steps == pl["baselines"]["ppo_steps"]
+    sets = [json.load(open(f)) for f in glob.glob(os.path.join(smoke_run, "scores", "*.json"))]
+    searches = [f for f in glob.glob(os.path.join(smoke_run, "tpe", "*.json")) if "per-design-bo" not in f]
+    played = sum(len(row) for sc in sets for row in sc["final_x"]) * ep
+    played += sum(len(json.load(open(f))["trials"]) for f in searches) * p.score_episodes * ep
+    assert played == sum(v["score_steps"] for k, v in pl.items() if k != "cost")
+    probed = sum(len(h["probes_unit"]) * len(h["mu"])   # per round, every specialist scores every probe
+                 for f in glob.glob(os.path.join(smoke_run, "ges", "*", "state.json"))
+                 for h in json.load(open(f))["history"])
+    assert probed * len(p.probe_level_steps) * ep == sum(v["probe_steps"] for v in pl.values())   # all at the cap
+    assert run_all.main(["--preset", "quick", "--plan"]) == 0
+    assert "total" in capsys.readouterr().out
+
+
 def test_run_all_probe_winners_tie_rule():
     J = np.array([[3, 1, 2, 5], [3, 2, 1, 5], [1, 2, 0, 6]])   # rows: checkpoints, columns: designs
     np.testing.assert_array_equal(run_all.probe_winners(J), [0, 1, 0, 2])   # ties -> lowest index, as GES
