@@ -46,6 +46,7 @@ class PPOConfig:
     clip: float = 0.2                  # [facts]
     entropy_coef: float = 0.01         # [facts]
     max_std: float = 0.0               # [ours] > 0: the action std is held <= this after each step (0 = free)
+    reward_norm: bool = False          # [ours] rewards / running std of the discounted return (see scale_rewards)
     value_coef: float = 1.0            # [ours] (rsl_rl's default)
     epochs: int = 5                    # [facts]
     minibatches: int = 4               # [facts]
@@ -200,6 +201,26 @@ def gae(rewards, values, dones, last_value, gamma: float, lam: float):
     return adv, adv + values
 
 
+def scale_rewards(buf, acc, ret_norm: RunningNorm, cfg: PPOConfig) -> np.ndarray:
+    """The (T, N) rewards GAE sees: the env's rewards, divided by the running std of each lane's discounted
+    return if `cfg.reward_norm` (CleanRL's NormalizeReward), plus the time-limit bootstrap gamma * V(final
+    observation), which is already in the critic's units. `acc` (N,) carries each lane's discounted return
+    across rollouts and is updated in place, as is `ret_norm`.
+
+    [ours, issue 16] BALLU's dt-scaled eq. 4 rewards give returns of ~-60 to -250 (value loss 15-40 at 1 M
+    steps); scaled, the critic's targets are O(1) whatever the reward form, its scale or the design."""
+    if not cfg.reward_norm:
+        return buf["rew"] + buf["boot"]
+    disc = np.empty_like(buf["rew"])
+    for t in range(len(disc)):
+        acc *= cfg.gamma
+        acc += buf["rew"][t]
+        disc[t] = acc
+        acc[buf["done"][t] > 0] = 0.0
+    ret_norm.update(disc.reshape(-1, 1))
+    return (buf["rew"] / np.sqrt(ret_norm.var[0] + 1e-8)).astype(np.float32) + buf["boot"]
+
+
 def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.random.Generator):
     """Several epochs of clipped-surrogate minibatch steps; the learning rate follows the KL. [facts]"""
     n = len(batch["obs"])
@@ -249,14 +270,17 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
 CKPT_VERSION = 1
 
 
-def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None):
-    """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint."""
+def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None, ret_norm=None):
+    """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint. `ret_norm`: the
+    return statistics of cfg.reward_norm (absent from older checkpoints: they start afresh)."""
     state = {"version": CKPT_VERSION, "kind": kind, "obs_dim": int(norm.mean.shape[0]),
              "act_dim": int(policy.log_std.shape[0]), "cfg": {k: list(v) if isinstance(v, tuple) else v
                                                               for k, v in asdict(cfg).items()},
              "policy": policy.state_dict(), "optimizer": opt.state_dict(), "norm": norm.state(),
              "steps": int(steps), "lr": float(lr), "levels": torch.as_tensor(np.asarray(levels)),
              "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "extra": extra or {}}
+    if ret_norm is not None:
+        state["ret_norm"] = ret_norm.state()
     tmp = f"{path}.tmp"
     torch.save(state, tmp)
     os.replace(tmp, path)
@@ -306,7 +330,8 @@ def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: in
     eps = np.stack([np.random.default_rng([noise_seed, int(i)]).standard_normal((T, A), dtype=np.float32)
                     for i in lane_ids], axis=1)                      # (T, n, A)
     buf = {k: np.zeros((T, n) + s, dtype=np.float32) for k, s in
-           (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()), ("done", ()), ("val", ()))}
+           (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()), ("boot", ()), ("done", ()),
+            ("val", ()))}
     buf["new_obs"] = np.zeros((T,) + obs.shape, dtype=obs.dtype)
     log_std = policy.log_std.detach()
     std = log_std.exp().numpy()
@@ -321,10 +346,9 @@ def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: in
         a = mu + std * eps[t]
         buf["obs"][t], buf["act"][t], buf["mu"][t], buf["val"][t] = o.numpy(), a, mu, v
         obs, rew, term, trunc, info = env.step(a)
-        rew = rew.astype(np.float32)
-        if trunc.any():   # time-limit end: bootstrap with V(final observation)
+        if trunc.any():   # time-limit end: bootstrap with V(final observation), kept apart from the reward
             with torch.inference_mode():
-                rew[trunc] += cfg.gamma * policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
+                buf["boot"][t][trunc] = cfg.gamma * policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
         done = term | trunc
         returns.extend(info["episode_return"][done].tolist())
         buf["rew"][t], buf["done"][t], buf["new_obs"][t] = rew, done, obs
@@ -375,7 +399,7 @@ def flatten_batch(buf, adv, ret, std) -> dict:
 
 def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
     """Where a run starts: resumed from `ckpt` if it exists (random streams included), else warm-started from
-    `init_ckpt`, else fresh from `seed`. Returns (policy, norm, opt, rng, lr, steps, levels)."""
+    `init_ckpt`, else fresh from `seed`. Returns (policy, norm, opt, rng, lr, steps, levels, ret_norm)."""
     resume = ckpt if os.path.exists(ckpt) else init_ckpt
     state = load_checkpoint(resume) if resume else None
     if resume != ckpt:
@@ -389,19 +413,22 @@ def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
         policy, norm = policy_from(state)
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
     rng = np.random.default_rng([seed, 1])
+    ret_norm = RunningNorm(1)
     if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
         levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
     else:
         levels = np.full(env.num_envs, start_level)
     if state is None:
-        return policy, norm, opt, rng, cfg.lr, 0, levels
+        return policy, norm, opt, rng, cfg.lr, 0, levels, ret_norm
     opt.load_state_dict(state["optimizer"])
+    if "ret_norm" in state:
+        ret_norm.load(state["ret_norm"])
     if len(state["levels"]):
         levels = np.resize(state["levels"].numpy(), env.num_envs)
     if resume == ckpt:   # resuming this very run: continue its random streams too
         rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
-    return policy, norm, opt, rng, state["lr"], state["steps"], levels   # steps: counted from the first update ever
+    return policy, norm, opt, rng, state["lr"], state["steps"], levels, ret_norm   # steps: from the first update ever
 
 
 class TrainLog:
@@ -459,21 +486,23 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     if total_steps < 1:
         raise ValueError(f"total_steps={total_steps!r} must be >= 1")
     torch.set_num_threads(1)   # the env workers own the cores; the update is small
-    policy, norm, opt, rng, lr, steps, levels = start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level)
+    policy, norm, opt, rng, lr, steps, levels, ret_norm = start_run(kind, env, ckpt, init_ckpt, cfg, seed,
+                                                                    start_level)
     if steps >= total_steps:
         return {"steps": steps, "resumed": True}
     obs, _ = env.reset(seed=int(rng.integers(2 ** 31)),
                           options={"design_sampler": design_sampler, "levels": levels})
     norm.update(obs)
     T, N = cfg.num_steps, env.num_envs
-    it, ep_returns = 0, deque(maxlen=100)
+    it, ep_returns, acc = 0, deque(maxlen=100), np.zeros(N, dtype=np.float32)
     with TrainLog(log_csv, progress, kind, total_steps) as log:
         while steps < total_steps:
             t0 = time.time()
             buf, obs, info, finished = rollout(kind, policy, norm, env, obs, T, cfg, int(rng.integers(2 ** 31)))
             with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
                 last_value = policy.value(torch.from_numpy(norm(obs))).numpy()
-            adv, ret = gae(buf["rew"], buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
+            rew = scale_rewards(buf, acc, ret_norm, cfg)
+            adv, ret = gae(rew, buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
             std = policy.log_std.exp().detach()
             batch = flatten_batch(buf, adv, ret, std)
             t_roll = time.time() - t0
@@ -485,7 +514,7 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
             log.write(steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, float(levels.mean()), st, lr,
                       float(std.mean()))
             if it % cfg.ckpt_every == 0 or steps >= total_steps:
-                save_checkpoint(ckpt, policy, opt, norm, kind, cfg, steps, lr, levels, rng)
+                save_checkpoint(ckpt, policy, opt, norm, kind, cfg, steps, lr, levels, rng, ret_norm=ret_norm)
     return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
             "wall_s": time.time() - log.t_start}
 
@@ -557,6 +586,8 @@ PROTOCOL_SETTINGS = {
     "spread_start": {"init_action_mean": 0.5, "start_level": "spread"},        # levels 0..the score's start level
     "unscaled_reward": {"init_action_mean": 0.5, "reward_dt_scale": False},   # the authors' fork's reward scale
     "max_std": {"init_action_mean": 0.5, "max_std": 0.5},                     # std held <= its start value
+    "reward_norm": {"init_action_mean": 0.5, "reward_norm": True},            # critic targets O(1)
+    "more_epochs": {"init_action_mean": 0.5, "epochs": 10, "minibatches": 8},  # 80 gradient steps per batch
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {"init_action_mean": 0.5, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2,
               "epochs": 3, "start_level": "spread"},

@@ -584,6 +584,43 @@ def test_ppo_solves_a_point_mass(tmp_path):
     assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
 
 
+def test_scale_rewards_divides_by_the_std_of_each_lanes_discounted_return():
+    """reward_norm: rewards / std of every lane's discounted return so far (brute force over two rollouts,
+    episodes cut by dones, the running statistics carried across); the time-limit bootstrap is added unscaled.
+    Off: the rewards plus the bootstrap, unchanged."""
+    rng = np.random.default_rng(1)
+    T, N, gamma = 25, 4, 0.9
+    cfg = ppo.PPOConfig(gamma=gamma, reward_norm=True)
+    bufs = [{"rew": rng.normal(-3, 2, (T, N)).astype(np.float32), "done": (rng.uniform(size=(T, N)) < 0.1)
+             .astype(np.float32), "boot": rng.normal(size=(T, N)).astype(np.float32)} for _ in range(2)]
+    seen, ends = np.concatenate([b["rew"] for b in bufs]), np.concatenate([b["done"] for b in bufs])
+    acc, ret_norm = np.zeros(N, np.float32), ppo.RunningNorm(1)
+    for i, b in enumerate(bufs):
+        out = ppo.scale_rewards(b, acc, ret_norm, cfg)
+        disc = []   # brute force over every step so far: R_t = sum over k <= t in t's episode of gamma^(t-k) r_k
+        for n in range(N):
+            start = 0
+            for t in range(T * (i + 1)):
+                disc.append(sum(gamma ** (t - k) * seen[k, n] for k in range(start, t + 1)))
+                start = t + 1 if ends[t, n] else start
+        np.testing.assert_allclose(out, b["rew"] / np.std(disc) + b["boot"], rtol=1e-4, atol=1e-6)
+    off = ppo.scale_rewards(bufs[0], np.zeros(N, np.float32), ppo.RunningNorm(1), ppo.PPOConfig())
+    np.testing.assert_array_equal(off, bufs[0]["rew"] + bufs[0]["boot"])
+
+
+def test_reward_norm_solves_the_point_mass_and_resumes_its_statistics(tmp_path):
+    """The point mass of the test above with reward_norm: learned, and the return statistics are in the
+    checkpoint; a resumed run starts from them."""
+    cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4, reward_norm=True)
+    ck = str(tmp_path / "pm.pt")
+    ppo.train("mlp", PointMass(16), None, 40_000, ck, cfg, seed=0, progress=None)
+    learned = point_mass_return(ppo.load_policy(ck))
+    state = ppo.load_checkpoint(ck)
+    assert learned > -6 and state["ret_norm"]["count"] > 30_000, (learned, state["ret_norm"])
+    start = ppo.start_run("mlp", PointMass(16), ck, None, cfg, 0, 0)
+    assert float(start[-1].var[0]) == float(state["ret_norm"]["var"][0]) > 1.5
+
+
 @pytest.mark.parametrize("kind", ["mlp", "moe"])
 def test_max_std_bounds_the_action_std_that_the_entropy_bonus_widens(kind, tmp_path):
     """A large entropy bonus widens the std past 0.5 within a few updates; PPOConfig.max_std = 0.3 holds it
