@@ -527,9 +527,9 @@ class Run:
         return space_of(self.preset, task, sp).sample_uniform(rng, self.preset.n_test)
 
     def pool(self):
-        """The executor of independent jobs (trainings, GES specialists' rounds, TPE searches): a Dask cluster's,
-        a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs its env
-        in its own process (workers=1 inside), so any executor gives the same numbers."""
+        """The executor of independent jobs (trainings, GES specialists' rounds, score sets, TPE searches): a Dask
+        cluster's, a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs
+        its env in its own process (workers=1 inside), so any executor gives the same numbers."""
         if self.executor == "dask":
             return dask_executor(dask_client(self.scheduler, self.workers))
         if self.workers <= 1:
@@ -673,6 +673,49 @@ def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
 
 
 @dataclass
+class ScoreSet:
+    """One score set of the test designs as a job of the run's executor [ours, issue 17 item 3]: a method's J on
+    its task/space's test designs ("design": the baseline policy on the baseline design; "ges": the GES run
+    `ges_run`, default the cell's main run), kept in scores/<key>.json. A job scores in its own process
+    (workers=1); J does not depend on that (ballu.score), so any executor gives the same numbers."""
+    out: str
+    preset: Preset
+    seed: int
+    task: str
+    sp: str
+    method: str
+    ges_run: str | None = None
+
+    @property
+    def key(self) -> str:
+        if self.method == "design":
+            return f"design-{self.task}"
+        return score_key(Run(self.out, self.preset, self.seed, 1), self.task, self.sp, self.method, self.ges_run)
+
+    def __call__(self) -> list:
+        run = Run(self.out, self.preset, self.seed, 1)
+        t, sp, key = self.task, self.sp, self.key
+        if self.method == "design":
+            return cached_scores(run, key, lambda tr: score_policy(load_policy(run, "baseline", t, sp),
+                                 ballu.BASELINE[None], t, run.preset, 1, key, trace=tr), ballu.BASELINE[None]).tolist()
+        space, theta = space_of(run.preset, t, sp), run.test_designs(t, sp)
+        compute = ((lambda tr: ges_J(run.path("ges", self.ges_run), t, space, run.preset, 1, key, tr)(theta))
+                   if self.ges_run else (lambda tr: method_J(run, self.method, t, sp, key, tr)(theta)))
+        return cached_scores(run, key, compute, space.full(theta)).tolist()
+
+
+def score_sets(run: Run, jobs: list, label: str) -> dict:
+    """Score sets through the run's executor, `workers` at a time (one process each); key -> scores."""
+    prog, out = Progress(label, len(jobs), every=0), {}
+    with run.pool() as ex:
+        futures = [ex.submit(job) for job in jobs]
+        for i, (job, fut) in enumerate(zip(jobs, futures)):
+            out[job.key] = np.array(fut.result())
+            prog(i + 1, f"{job.task} {job.sp} {job.method}: mean {out[job.key].mean():.2f}")
+    return out
+
+
+@dataclass
 class SearchSpec:
     """One TPE design search maximising a method's J(theta) (picklable: runs in a pool worker)."""
     out: str
@@ -728,21 +771,18 @@ def wins(a: np.ndarray, b: np.ndarray) -> dict:
 def stage_table2(run: Run) -> dict:
     """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
     out = {"design": {}, "cells": {}}
-    units = [(t, s, m) for t in TASKS for s in SPACES for m in METHODS]
-    prog = Progress("score sets", len(units) + len(TASKS), every=0)
-    for i, t in enumerate(TASKS):   # the "baseline design" column: the baseline policy at the baseline design
-        s = cached_scores(run, f"design-{t}", lambda tr: score_policy(load_policy(run, "baseline", t, "d2"),
-                          ballu.BASELINE[None], t, run.preset, 1, f"design-{t}", trace=tr), ballu.BASELINE[None])
-        out["design"][t] = float(s[0])
-        prog(i + 1, f"baseline design {t}")
-    for i, (t, s, m) in enumerate(units):
-        theta, key = run.test_designs(t, s), score_key(run, t, s, m)
-        sc = cached_scores(run, key, lambda tr: method_J(run, m, t, s, key, tr)(theta),
-                           space_of(run.preset, t, s).full(theta))
-        out["cells"].setdefault(f"{t}-{s}", {})[m] = {"mean": float(sc.mean()), "std": float(sc.std()),
-                                                      "min": float(sc.min()), "max": float(sc.max()),
-                                                      "scores": sc.tolist()}
-        prog(len(TASKS) + i + 1, f"{t} {s} {m}: mean {sc.mean():.2f}")
+    # the "baseline design" column: the baseline policy at the baseline design; then every method's test set
+    design = [ScoreSet(run.out, run.preset, run.seed, t, "d2", "design") for t in TASKS]
+    units = [ScoreSet(run.out, run.preset, run.seed, t, s, m, run.main_ges(t, s) if m == "ges" else None)
+             for t in TASKS for s in SPACES for m in METHODS]
+    scores = score_sets(run, design + units, "score sets")
+    for job in design:
+        out["design"][job.task] = float(scores[job.key][0])
+    for job in units:
+        sc = scores[job.key]
+        out["cells"].setdefault(f"{job.task}-{job.sp}", {})[job.method] = {
+            "mean": float(sc.mean()), "std": float(sc.std()), "min": float(sc.min()), "max": float(sc.max()),
+            "scores": sc.tolist()}
     for key, cell in out["cells"].items():
         g = np.array(cell["ges"]["scores"])
         cell["ges_wins"] = {m: wins(g, np.array(cell[m]["scores"])) for m in ("baseline", "mlp", "moe")}
@@ -767,12 +807,12 @@ def write_test_csv(run: Run, t2: dict) -> None:
 
 
 # --- Table III and K sensitivity ----------------------------------------------------------------------------
-def ges_test_scores(run: Run, name: str) -> np.ndarray:
-    """A GES run's routed score on the obstacle D2 test designs (shared with Table II)."""
-    space, theta = space_of(run.preset, "obstacle", "d2"), run.test_designs("obstacle", "d2")
-    key = score_key(run, "obstacle", "d2", "ges", name)
-    return cached_scores(run, key, lambda tr: ges_J(run.path("ges", name), "obstacle", space, run.preset,
-                                                    run.workers, key, tr)(theta), space.full(theta))
+def ges_test_scores(run: Run, names: list, label: str) -> dict:
+    """GES runs' routed scores on the obstacle D2 test designs (shared with Table II), one executor job each:
+    run name -> scores."""
+    jobs = [ScoreSet(run.out, run.preset, run.seed, "obstacle", "d2", "ges", n) for n in names]
+    scores = score_sets(run, jobs, label)
+    return {n: scores[job.key] for n, job in zip(names, jobs)}
 
 
 def summary(s: np.ndarray) -> dict:
@@ -785,16 +825,20 @@ def stage_table3(run: Run) -> dict:
     ges stage's run (same directory), so it is not trained twice."""
     specs = [("obstacle", "d2", run.K("d2"), init) for init in run.preset.table3_inits]
     runs = ges_runs(run, specs, "Table III GES runs")
-    return {init: dict(summary(ges_test_scores(run, ges_name(*sp))), rounds=runs[ges_name(*sp)]["rounds"],
-                       coverage=runs[ges_name(*sp)]["coverage"]) for init, sp in zip(run.preset.table3_inits, specs)}
+    names = [ges_name(*sp) for sp in specs]
+    scores = ges_test_scores(run, names, "Table III score sets")
+    return {init: dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"])
+            for init, n in zip(run.preset.table3_inits, names)}
 
 
 def stage_ksens(run: Run) -> dict:
     """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run."""
     specs = [("obstacle", "d2", K, "fps+lloyd") for K in run.preset.ksens_K]
     runs = ges_runs(run, specs, "K-sensitivity GES runs")
-    return {str(K): dict(summary(ges_test_scores(run, ges_name(*sp))), rounds=runs[ges_name(*sp)]["rounds"],
-                         coverage=runs[ges_name(*sp)]["coverage"]) for K, sp in zip(run.preset.ksens_K, specs)}
+    names = [ges_name(*sp) for sp in specs]
+    scores = ges_test_scores(run, names, "K-sensitivity score sets")
+    return {str(K): dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"])
+            for K, n in zip(run.preset.ksens_K, names)}
 
 
 # --- computational cost -------------------------------------------------------------------------------------
