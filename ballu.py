@@ -635,6 +635,14 @@ class BalluEnv:
         self.rngs = [np.random.default_rng(0) for _ in range(n)]
         self._ready = False
         self.sim_seconds = 0.0
+        self._stepping = self.worlds     # worlds that stepSimulation steps (see pause)
+
+    def pause(self, lanes):
+        """Stop stepping the worlds whose every lane is paused (score pauses lanes whose result is known; their
+        robots stand still, their outputs are to be ignored). Other worlds are PyBullet clients of their own,
+        so their trajectories do not change."""
+        paused = set(int(i) for i in lanes)
+        self._stepping = [w for w in self.worlds if not set(w.lanes) <= paused]
 
     # -- world -------------------------------------------------------------------------------------------
     def client(self, i):
@@ -732,7 +740,7 @@ class BalluEnv:
             self.levels = lv
         for i in range(self.num_envs):
             self._reset_lane(i)
-        self._ready = True
+        self._ready, self._stepping = True, self.worlds
         return self._observe(), {"levels": self.levels.copy(), "designs": self.designs.copy()}
 
     # -- the hot loop ------------------------------------------------------------------------------------
@@ -750,7 +758,7 @@ class BalluEnv:
         world_frame, torque_mode = pybullet.WORLD_FRAME, pybullet.TORQUE_CONTROL
         slew = cfg.servo_speed * cfg.dt if cfg.servo_slew else math.inf
         ratio = 100.0 / 180.0
-        for world in self.worlds:
+        for world in self._stepping:
             cid = world.cid
             for i in world.lanes:
                 b = self.bodies[i]
@@ -1124,6 +1132,9 @@ def stand(obs):
     return np.zeros((len(obs), ACT_DIM))
 
 
+stand.pure = True   # row by row, no state: score may reuse its episodes (see score)
+
+
 class PumpGait:
     """Scripted floor 2: knees pulled fully for half a period, released for the other half.
 
@@ -1157,15 +1168,31 @@ class PumpGait:
         return np.broadcast_to(np.stack(np.broadcast_arrays(left, right), -1), (len(obs), ACT_DIM)).copy()
 
 
-def _score_open(state, policy, designs, lane_ids, cfg, start, steps):
+def _score_open(state, policy, designs, lane_ids, cfg, start, steps, reuse=False):
     """Scoring, step 1 (in a worker, or in this process with a local `state`): a fresh env, one lane per design;
-    `steps[e]` = levels episode e moves (see score's `level_steps`)."""
+    `steps[e]` = levels episode e moves (see score's `level_steps`); `reuse`: replay known episodes (score)."""
     n, episodes = len(designs), len(steps)
     env = BalluEnv(n, cfg, lane_ids=lane_ids, curriculum=True)
     obs, _ = env.reset(seed=0, options={"designs": designs, "levels": np.full(n, start)})
     env.level_step = np.full(n, steps[0])   # each lane's current episode's step; moves on as episodes end
     state["score"] = {"env": env, "policy": policy, "obs": obs, "count": np.zeros(n, dtype=int), "steps": steps,
-                      "final": np.full(n, -1), "x": np.full((n, episodes), np.nan)}
+                      "final": np.full(n, -1), "x": np.full((n, episodes), np.nan),
+                      "known": [{} for _ in range(n)] if reuse else None, "episodes_played": 0}
+
+
+def _replay_known(s, lanes, levels):
+    """Lanes whose next level was played before: a deterministic policy on a deterministic simulator repeats
+    that episode exactly, and with unit steps the walk's next level depends on the level alone, so the rest of
+    the walk is a cycle through known episodes. Fill it in (final x of each episode, the final level)."""
+    count, x, final, known, episodes = s["count"], s["x"], s["final"], s["known"], len(s["steps"])
+    for i, lv in zip(lanes, levels):
+        lv = int(lv)
+        if lv not in known[i]:
+            continue
+        while count[i] < episodes:
+            lv_next, x[i, count[i]] = known[i][lv]
+            count[i], lv = count[i] + 1, lv_next
+        final[i] = lv
 
 
 def _score_play(state, until):
@@ -1173,16 +1200,31 @@ def _score_play(state, until):
     last episode is its result (-1 until then). Also returns each episode's final pelvis x."""
     s = state["score"]
     env, policy, count, final, x, steps = s["env"], s["policy"], s["count"], s["final"], s["x"], s["steps"]
-    episodes = len(steps)
+    episodes, known = len(steps), s["known"]
     while (np.minimum(count, episodes) < until).any():
-        s["obs"], _, _, _, info = env.step(policy(s["obs"]))
+        if known is None:
+            actions = policy(s["obs"])
+        else:   # a pure policy acts row by row: only the lanes still playing are asked
+            playing = count < episodes
+            actions = np.zeros((len(count), ACT_DIM))
+            actions[playing] = policy(s["obs"][playing])
+        s["obs"], _, _, _, info = env.step(actions)
         done = info["_final_obs"] & (count < episodes)
         if done.any():
-            x[done, count[done]] = info["final_x"][done]
+            ids = np.flatnonzero(done)
+            x[ids, count[ids]] = info["final_x"][ids]
+            s["episodes_played"] += len(ids)
+            if known is not None:   # a blown-up episode is not kept: its level is played again
+                for i in ids[~info["blowup"][ids]]:
+                    known[i][int(info["episode_level"][i])] = (int(info["levels"][i]), float(info["final_x"][i]))
             count += done
             env.level_step = steps[np.minimum(count, episodes - 1)]   # the next episode's step
             hit = done & (count == episodes)
             final[hit] = info["levels"][hit]
+            if known is not None:
+                more = ids[count[ids] < episodes]
+                _replay_known(s, more, info["levels"][more])
+            env.pause(np.flatnonzero(count >= episodes))   # finished lanes: their worlds stop stepping
     return final.copy(), x.copy()
 
 
@@ -1214,7 +1256,7 @@ def check_level_steps(level_steps, episodes: int | None) -> np.ndarray:
 
 def score(policy, designs, task: str = "obstacle", episodes: int | None = None, start_level: int | None = None,
           workers: int = 1, cfg: BalluConfig | None = None, progress=None, final_x: bool = False,
-          level_steps=None):
+          level_steps=None, reuse: bool | None = None):
     """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
 
     The policy (any picklable callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy;
@@ -1237,17 +1279,31 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     ~log2(range) episodes, then a few unit steps settle it as the unit walk does. (16, 8, 4, 2, 1, 1, 1)
     reaches +-33 levels (the unit walk: +-20) in 7 episodes, ~3x cheaper. Meant for GES's probes; the paper's
     J (tables, test designs) keeps the unit steps. None (default) = unit steps, exactly the facts' J.
+
+    `reuse` (default: on for a policy marked `pure = True`, as ppo.PolicyFn and `stand` are, with unit steps):
+    play each level of a design's walk once. [ours, issue 17, exact]  An episode starts from the same reset
+    state, and a pure policy (no state, each row's action from that row alone) on this deterministic simulator
+    plays it the same way every time: measured, 83 of 83 revisited levels ended at a bit-identical pelvis x
+    (an e2e MLP, 8 designs). With unit steps the next level depends on the level alone, so once a walk
+    reaches a level it played before, the rest of it cycles through known episodes: it is filled in, and the
+    design's world stops stepping. The J and every episode's final x are those of playing all 20 (test).
+    A walk that holds its level or swings between two costs 1-2 episodes after it gets there.
     """
     cfg = replace(cfg or BalluConfig(), task=task, lanes_per_world=1)   # one world per design (above)
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
     steps = check_level_steps(level_steps, episodes)
-    episodes = len(steps)
+    episodes, unit = len(steps), bool((steps == 1).all())
     if not 0 <= start <= MAX_LEVEL:
         raise ValueError(f"start_level={start!r} must lie in [0, {MAX_LEVEL}]")
+    if reuse is None:
+        reuse = unit and bool(getattr(policy, "pure", False))
+    elif reuse and not unit:
+        raise ValueError(f"reuse=True needs unit level steps (the walk's next level from the level alone), "
+                         f"got level_steps={level_steps!r}")
     parts = [ids for ids in np.array_split(np.arange(len(d)), min(workers, len(d))) if len(ids)]
     part = getattr(policy, "for_lanes", None)   # a policy with per-lane settings hands each worker its part
-    args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, steps)
+    args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, steps, reuse)
             for ids in parts]
     call = (InProcess() if len(parts) == 1 else shared_pool(len(parts))).call
     try:

@@ -548,7 +548,9 @@ class PolicyFn:
     Row by row [ours]: a batched matrix product rounds a row differently for other batch sizes (measured: 33 of
     400 sub-batches of a random MLP differ from the full batch), and contact physics turns rounding into other
     trajectories. So a design's J must not depend on which designs share its call, or on the worker count.
-    Costs ~27 us per row, ~2 % of the physics of a 20 Hz step (issue 15)."""
+    Costs ~27 us per row, ~2 % of the physics of a 20 Hz step (issue 15). Being pure (no state, rows
+    independent), it lets ballu.score play each level of a walk once (`reuse`)."""
+    pure = True
 
     def __init__(self, policy: nn.Module, norm: RunningNorm):
         self.policy, self.norm = policy.eval(), norm

@@ -255,10 +255,15 @@ class ThresholdEnv:
         g, n = ballu.task_geometry(self.task), len(self.levels)
         at = (self.levels == self.T) & self.stay
         x = np.where(self.levels < self.T, g["up"] + 0.1, np.where(at, (g["up"] + g["down"]) / 2, g["down"] - 0.1))
+        played = self.levels
         self.levels = ballu.curriculum_update(self.task, self.levels, x, self.level_step)   # as BalluEnv.step
         done = np.ones(n, dtype=bool)
-        return np.zeros((n, ballu.OBS_DIM)), np.zeros(n), ~done, done, {"_final_obs": done, "final_x": x,
-                                                                           "levels": self.levels.copy()}
+        return np.zeros((n, ballu.OBS_DIM)), np.zeros(n), ~done, done, {
+            "_final_obs": done, "final_x": x, "levels": self.levels.copy(), "episode_level": played,
+            "blowup": ~done}
+
+    def pause(self, lanes):
+        pass
 
     def close(self):
         pass
@@ -777,6 +782,50 @@ def test_score_in_workers_equals_score_in_one_process():
             _, x3 = ballu.score(policy, designs[1:4], "obstacle", episodes=2, cfg=cfg, workers=2, final_x=True)
             np.testing.assert_array_equal(x1[1:4], x3)
     assert ballu.shared_pool(2) is ballu.shared_pool(2)
+
+
+class HysteresisPump:
+    """A pure pump gait for tests: keep pulling both knees (last action 1, read from the observation) until a knee
+    bends past 1.7 rad, keep releasing until it is straighter than 0.6 rad. No state of its own, so
+    ballu.score may reuse its episodes. The baseline design hops over low boxes with it."""
+    pure = True
+
+    def __call__(self, obs):
+        o = np.asarray(obs)
+        q, last = o[:, 9:11], o[:, 16:18]   # knee angles, last action (ballu observation layout)
+        return np.where(last > 0.5, q < 1.7, q < 0.6).astype(float)
+
+
+def test_score_reuse_replays_known_levels_exactly(monkeypatch):
+    """score(reuse=True) plays each level of a design's walk once: J and every episode's final x equal playing
+    every episode, on walks that swing between two levels (the robot hits the box face, then clears it), that
+    sit on the floor level 0, and that climb (ramp: the wedge is rebuilt each level), with fewer physics steps;
+    reuse needs unit level steps."""
+    steps = [0]
+    step_simulation = pybullet.stepSimulation
+
+    def counted(*args, **kw):
+        steps[0] += 1
+        return step_simulation(*args, **kw)
+
+    monkeypatch.setattr(ballu.pybullet, "stepSimulation", counted)
+    designs = np.array([ballu.BASELINE, [0.45, 0.45, 0.81, 0.0505]])
+    for task, start, episodes in (("obstacle", 4, 5), ("ramp", 2, 5)):
+        out, cost = {}, {}
+        for reuse in (False, True):
+            steps[0] = 0
+            out[reuse] = ballu.score(HysteresisPump(), designs, task, episodes=episodes, start_level=start,
+                                     final_x=True, reuse=reuse)
+            cost[reuse] = steps[0]
+        np.testing.assert_array_equal(out[True][0], out[False][0])
+        np.testing.assert_array_equal(out[True][1], out[False][1])
+        x = out[False][1]
+        assert len(set(x[1])) == 1 and x[1, 0] < 0.5, x          # the D2 centre sits on level 0
+        assert cost[True] < cost[False], (task, cost)
+        if task == "obstacle":   # the baseline swings: cleared (x > 1), then short of the face (x < 0.5)
+            assert x[0, 0] < 0.5 < 1.0 < x[0, 1] and x[0, 2] == x[0, 0], x
+    with pytest.raises(ValueError, match="reuse=True needs unit level steps"):
+        ballu.score(HysteresisPump(), designs[:1], "obstacle", level_steps=(2, 1), reuse=True)
 
 
 def test_score_of_a_design_does_not_depend_on_its_call_mates():
