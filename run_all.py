@@ -293,7 +293,8 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 #     searches x 12 trials + 1 per-design BO trial (800k + J), extrapolated to 12        ~ 40 min
 # Measured: see README (the preset's wall time per stage is in REPORT.md). This arithmetic was made at the old
 # simulator's rates; `python run_all.py --preset quick --plan` redoes it at today's (issue 14's physics is ~4x
-# slower per step): 3.5 h on 2 cores, so the preset is to be re-planned (issue 17, item 5).
+# slower per step; scores reuse episodes, SCORE_PLAYED): 3.1 h on 2 cores, so the preset is to be re-planned
+# (issue 17, item 5).
 # n_test (issue 17): the paired 95 % CI of GES - e2e MLP (obstacle D2) has half-width ~1.96 sd / sqrt(n). In the
 # committed quick run (slewed servo, docs/quick/test_scores.csv) sd = 5.2 cm, so +-2 cm needs n >= 27 (24 gave
 # +-2.1; obstacle D3: sd 6.6 cm, n >= 42). To be re-planned with the presets on the new simulator's rates.
@@ -308,7 +309,7 @@ QUICK = Preset("quick", ppo_steps=800_000, ges_round_steps=60_000, ppo_envs=32, 
 # machines: --workers uses every core. Work at the quick preset's rates: PPO 10 x 20M + 45 specialists x
 # <= 20 rounds x 1M + 40 BO trials x 20M <= 1.9 G steps (~6 days at 3,500 steps/s); probes 45 x 20 x 100 J x
 # 2.9 core-s ~ 1.5 days on 2 cores; test designs 24 x 1000 J x 2.9 core-s ~ 0.4 day: ~8-9 days on 2 cores.
-# At today's rates (`--plan`, GES at its 20-round cap): ~870 core-hours, ~18 days on 2 cores.
+# At today's rates (`--plan`, GES at its 20-round cap): ~775 core-hours, ~16 days on 2 cores.
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
                score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
                ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
@@ -324,11 +325,16 @@ PRESETS = {p.name: p for p in (SMOKE, QUICK, PAPER)}
 # ~1,750-1,930 steps/s on 2 cores (issue 16's screen), the 20-episode J 4.5 s per design on 2 cores
 # (8,000 control steps; `--probe-agreement`).
 TRAIN_RATE, SCORE_RATE = 900.0, 890.0
+# Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
+# 0.52, 0.67, 0.65, 0.80 (mean 0.66) for four e2e MLPs at 1 M steps on issue 16's 12 protocol designs
+# (obstacle, from level 28), measured 2026-11-25. The step counts below stay those of every episode.
+SCORE_PLAYED = 0.66
 
 
 def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
     """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
-    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing.
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing,
+    scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
     GES runs are counted at their round cap (a run that reaches the target coverage stops earlier); the
     figures stage is left out (seconds)."""
     p, episode = preset, ballu.BalluConfig().episode_steps
@@ -347,15 +353,17 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
             "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
             "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0])}
+    played = SCORE_PLAYED if p.score_episodes > 1 else 1.0   # one episode has nothing to reuse
     return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": (w[0] / train_rate + (w[1] + w[2]) / score_rate) / workers / 3600}
+                    "hours": (w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / workers / 3600}
             for stage, w in work.items()}
 
 
 def plan_text(preset: Preset, workers: int = 2) -> str:
     rows = plan(preset, workers)
     lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
-             f"steps/s per core (GES at its round cap of {preset.ges_max_rounds}):"]
+             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
+             f"{preset.ges_max_rounds}):"]
     lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
               f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
     total = sum(v["hours"] for v in rows.values())
