@@ -691,8 +691,11 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
             wall = np.mean([sum(x["train_s"] + x["score_s"] for x in r) for r in rs]) / 60
             rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {_mean_se([r[-1]['train_level'] for r in rs])} "
                         f"| {wall:.0f} min |")
+    cpus = sorted({x.get("cpu", "not recorded") for r in results.values() for x in r})
     text = (f"J over {n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED}), {episodes} episodes each; "
-            f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows) + "\n")
+            f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows)
+            + f"\n\nScored on: {'; '.join(cpus)}" + (" (J differs between CPU models: compare scores made on one)"
+                                                    if len(cpus) > 1 else "") + "\n")
     with open(os.path.join(out, "protocol.md"), "w") as f:
         f.write(text)
     _protocol_curves(out, settings, tasks, seeds, os.path.join(out, "protocol_curves.png"))
