@@ -681,17 +681,22 @@ def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
 
 
 @dataclass
-class ScoreSet:
-    """One score set of the test designs as a job of the run's executor [ours, issue 17 item 3]: a method's J on
-    its task/space's test designs ("design": the baseline policy on the baseline design; "ges": the GES run
-    `ges_run`, default the cell's main run), kept in scores/<key>.json. A job scores in its own process
-    (workers=1); J does not depend on that (ballu.score), so any executor gives the same numbers."""
+class CellJob:
+    """A job of a run about one method in one task/space cell (picklable: runs in a pool worker)."""
     out: str
     preset: Preset
     seed: int
     task: str
     sp: str
     method: str
+
+
+@dataclass
+class ScoreSet(CellJob):
+    """One score set of the test designs as a job of the run's executor [ours, issue 17 item 3]: a method's J on
+    its task/space's test designs ("design": the baseline policy on the baseline design; "ges": the GES run
+    `ges_run`, default the cell's main run), kept in scores/<key>.json. A job scores in its own process
+    (workers=1); J does not depend on that (ballu.score), so any executor gives the same numbers."""
     ges_run: str | None = None
 
     @property
@@ -724,14 +729,8 @@ def score_sets(run: Run, jobs: list, label: str) -> dict:
 
 
 @dataclass
-class SearchSpec:
-    """One TPE design search maximising a method's J(theta) (picklable: runs in a pool worker)."""
-    out: str
-    preset: Preset
-    seed: int
-    task: str
-    sp: str
-    method: str
+class SearchSpec(CellJob):
+    """One TPE design search maximising a method's J(theta)."""
 
     @property
     def name(self) -> str:
