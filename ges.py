@@ -31,7 +31,8 @@ specialists can run in a process pool):
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn),
 plot_territories(history, path). `python ges.py --bench` times coverage/routing, `python ges.py --demo OUT`
-runs a synthetic landscape and writes OUT/territories.png.
+runs a synthetic landscape and writes OUT/territories.png, `python ges.py --sweep` prints rounds to coverage
+per (n_init, F) on it.
 """
 from __future__ import annotations
 
@@ -39,6 +40,7 @@ import argparse
 import json
 import math
 import os
+import tempfile
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
@@ -731,6 +733,33 @@ def demo(out_dir: str, dim: int = 2, seed: int = 0, workers: int = 1) -> GESResu
     return res
 
 
+def rounds_to_coverage(dim: int, n_init: int, n_probe: int, seeds=(0, 1, 2), max_rounds: int = 20) -> list:
+    """Rounds GES takes to reach its target coverage on the planted landscape (K = 3 in 2-D, 6 in 3-D), per
+    seed, as (rounds, final coverage). Why: coverage grows by refitting each territory to its designs, n_init
+    seeds plus the probes it wins, so its growth per round is set by F / n_init, not by F alone; this measures
+    what a preset's probe budget buys (`python ges.py --sweep`)."""
+    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
+    K = 3 if dim == 2 else 6
+    land = PlantedLandscape(space, DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3)))
+    out = []
+    for seed in seeds:
+        cfg = GESConfig(K=K, n_init_designs=n_init, n_probe=n_probe, max_rounds=max_rounds)
+        with tempfile.TemporaryDirectory() as d:
+            res = run_ges(space, land.train, land.score, d, cfg, seed, SerialExecutor(), progress=None)
+        out.append((res.rounds, res.coverage))
+    return out
+
+
+def sweep(pairs=((50, 100), (50, 16), (50, 4), (16, 32), (8, 16), (8, 8))):
+    """Print rounds to coverage for (n_init, F) pairs: the facts' (50, 100), smaller budgets, and the same
+    F / n_init ratio at smaller sizes."""
+    for dim in (2, 3):
+        for n_init, F in pairs:
+            r = rounds_to_coverage(dim, n_init, F)
+            print(f"D{dim} (K={3 if dim == 2 else 6})  n_init {n_init:3d}  F {F:3d}  F/n_init {F / n_init:5.2f}: "
+                  f"rounds {[x[0] for x in r]}, final coverage {[round(x[1], 2) for x in r]}", flush=True)
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Benchmark
 # ---------------------------------------------------------------------------------------------------------
@@ -761,6 +790,8 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bench", action="store_true", help="time coverage and routing")
     ap.add_argument("--demo", metavar="OUT_DIR", help="run the synthetic landscape, write territories.png")
+    ap.add_argument("--sweep", action="store_true", help="rounds to 95 %% coverage per (n_init, F), planted "
+                    "landscape, seeds 0-2")
     ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1, help="demo: >1 uses a ProcessPoolExecutor")
@@ -769,5 +800,7 @@ if __name__ == "__main__":
         bench()
     if args.demo:
         demo(args.demo, args.dim, args.seed, args.workers)
-    if not (args.bench or args.demo):
+    if args.sweep:
+        sweep()
+    if not (args.bench or args.demo or args.sweep):
         ap.print_help()

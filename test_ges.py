@@ -1142,6 +1142,16 @@ def test_ges_synthetic_reaches_coverage_and_specialises(synthetic_run):
     assert min(shares) > 0.85, shares              # ... mostly (measured 0.99 / 0.93 / 0.92)
 
 
+def test_ges_coverage_growth_is_set_by_probes_per_seed_design():
+    """Why the quick preset's GES stopped at 17-42 %: refits average the n_init seeds with the won probes, so
+    4 probes against 50 seeds barely move a territory, while the facts' ratio F / n_init = 2 at a small F
+    reaches the stopping rule (ges.py --sweep: 11-17 rounds in D2 for n_init 8, F 16)."""
+    small = ges.rounds_to_coverage(2, n_init=8, n_probe=16, seeds=(0,))[0]
+    diluted = ges.rounds_to_coverage(2, n_init=50, n_probe=4, seeds=(0,))[0]
+    assert small[1] >= 0.95 and small[0] < 20, small     # measured: 0.96 in 11 rounds
+    assert diluted == (20, pytest.approx(diluted[1])) and diluted[1] < 0.4, diluted   # measured: 0.22 at the cap
+
+
 def test_ges_result_and_history_files(synthetic_run, tmp_path):
     res = synthetic_run
     assert os.path.exists(os.path.join(res.run_dir, "history.json"))
