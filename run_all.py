@@ -922,34 +922,52 @@ def probe_winners(J: np.ndarray) -> np.ndarray:
 
 
 def probe_agreement(ckpts: list, task: str = "obstacle", n_designs: int = 20, level_steps=BISECTION,
-                    episodes: int = ballu.SCORE_EPISODES, seed: int = 0, workers: int = 1, progress=say) -> dict:
+                    episodes: int = ballu.SCORE_EPISODES, seed: int = 0, workers: int = 1, jitter: float = 0.0,
+                    progress=say) -> dict:
     """Does a probe schedule rank like the paper's J? Scores `n_designs` uniform D2 designs with each of the K
     checkpoints both ways, the full J (`episodes` unit steps) and the probe J (`level_steps`), and returns the
     share of designs where both pick the same winner (probe_winners' tie rule; the share of designs with a tie
     is returned too, since ties inflate agreement), Spearman's rank correlation over all K x n (design,
-    checkpoint) pairs (NaN if one way scored every pair alike) and each way's wall time."""
+    checkpoint) pairs (NaN if one way scored every pair alike) and each way's wall time.
+
+    `jitter` > 0 adds a third way, the ceiling of the bar [ours]: the full J itself on designs moved by
+    +-jitter of each axis' range (random signs). No probe score can agree with J better than J agrees with
+    itself a hair's breadth away, so its same-winner share and rank correlation say whether the bar can be met
+    on these checkpoints at all."""
     from scipy.stats import spearmanr
     space = ballu.d2(task)   # Table I bounds
-    full = space.full(space.sample_uniform(np.random.default_rng(derive_seed(seed, "probe-agreement", task)),
-                                           n_designs))
-    ways = {"full": {"episodes": episodes}, "probe": {"level_steps": tuple(level_steps)}}
+    rng = np.random.default_rng(derive_seed(seed, "probe-agreement", task))
+    theta = space.sample_uniform(rng, n_designs)
+    ways = {"full": (theta, {"episodes": episodes}), "probe": (theta, {"level_steps": tuple(level_steps)})}
+    if jitter > 0:
+        span = np.asarray(space.highs) - np.asarray(space.lows)
+        moved = np.clip(theta + jitter * span * rng.choice([-1.0, 1.0], theta.shape), space.lows, space.highs)
+        ways["jitter"] = (moved, {"episodes": episodes})
     J = {w: np.zeros((len(ckpts), n_designs)) for w in ways}
     seconds = {w: 0.0 for w in ways}
     for k, ckpt in enumerate(ckpts):
         policy = ppo.load_policy(ckpt)
-        for w, kw in ways.items():
+        for w, (th, kw) in ways.items():
             t0 = time.time()
-            J[w][k] = ballu.score(policy, full, task, workers=max(1, min(workers, n_designs)), **kw)
+            J[w][k] = ballu.score(policy, space.full(th), task, workers=max(1, min(workers, n_designs)), **kw)
             seconds[w] += time.time() - t0
             progress(f"probe agreement: checkpoint {k + 1}/{len(ckpts)} {w} J done ({seconds[w]:.0f} s so far)")
     win = {w: probe_winners(J[w]) for w in ways}
-    constant = any(np.ptp(J[w]) == 0 for w in ways)
-    rho = float("nan") if constant else float(spearmanr(J["full"].ravel(), J["probe"].ravel())[0])
-    return {"task": task, "designs": full.tolist(), "ckpts": list(ckpts), "episodes": episodes,
-            "level_steps": list(level_steps), "J_full": J["full"].tolist(), "J_probe": J["probe"].tolist(),
-            "same_winner_pct": float(100 * np.mean(win["full"] == win["probe"])),
-            "tie_pct": {w: float(100 * np.mean((J[w] == J[w].max(axis=0)).sum(axis=0) > 1)) for w in ways},
-            "spearman": rho, "seconds": seconds}
+
+    def agreement(w):   # (same winner %, Spearman) of way w against the full J
+        constant = np.ptp(J["full"]) == 0 or np.ptp(J[w]) == 0
+        rho = float("nan") if constant else float(spearmanr(J["full"].ravel(), J[w].ravel())[0])
+        return float(100 * np.mean(win["full"] == win[w])), rho
+
+    out = {"task": task, "designs": space.full(theta).tolist(), "ckpts": list(ckpts), "episodes": episodes,
+           "level_steps": list(level_steps), "J_full": J["full"].tolist(), "J_probe": J["probe"].tolist(),
+           "tie_pct": {w: float(100 * np.mean((J[w] == J[w].max(axis=0)).sum(axis=0) > 1)) for w in ways},
+           "seconds": seconds}
+    out["same_winner_pct"], out["spearman"] = agreement("probe")
+    if jitter > 0:
+        out.update(jitter=jitter, J_jitter=J["jitter"].tolist(), ceiling=dict(zip(("same_winner_pct", "spearman"),
+                                                                               agreement("jitter"))))
+    return out
 
 
 def probe_agreement_text(r: dict) -> str:
@@ -967,7 +985,10 @@ def probe_agreement_text(r: dict) -> str:
         + (f"{r['spearman']:.3f}" if np.isfinite(r["spearman"]) else "undefined (one way scored every pair alike)")
         + f" (bar >= {PROBE_BAR['spearman']})",
         f"  wall time: full J {full_s:.0f} s, probe J {probe_s:.0f} s ({full_s / max(probe_s, 1e-9):.1f}x faster)",
-        f"  issue 17's bar: {'met' if ok else 'NOT met'}"])
+        f"  issue 17's bar: {'met' if ok else 'NOT met'}"]
+        + ([f"  ceiling: the full J on designs moved by +-{100 * r['jitter']:g} % of each range agrees with the "
+            f"full J on {r['ceiling']['same_winner_pct']:.1f} % of winners, Spearman {r['ceiling']['spearman']:.3f}"]
+           if "ceiling" in r else []))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1552,6 +1573,9 @@ def parse(argv):
                     help=f"with --probe-agreement: the probe schedule (default {','.join(map(str, BISECTION))})")
     ap.add_argument("--episodes", type=int, default=ballu.SCORE_EPISODES,
                     help=f"with --probe-agreement: episodes of the full J (default {ballu.SCORE_EPISODES})")
+    ap.add_argument("--jitter", type=float, default=0.0,
+                    help="with --probe-agreement: also score the full J on designs moved by this share of each "
+                         "range (e.g. 0.001), the ceiling any probe score can reach")
     return ap.parse_args(argv)
 
 
@@ -1572,8 +1596,10 @@ def check_probe_args(args) -> dict:
     except ValueError:
         raise BadInput(f"--level-steps {args.level_steps} must be comma-separated integers in "
                        f"[1, {ballu.MAX_LEVEL}]") from None
+    if not 0 <= args.jitter < 1:
+        raise BadInput(f"--jitter {args.jitter} must lie in [0, 1) (a share of each design axis' range)")
     return {"ckpts": ckpts, "task": args.task, "n_designs": args.designs, "level_steps": steps,
-            "episodes": args.episodes, "seed": args.seed, "workers": args.workers}
+            "episodes": args.episodes, "seed": args.seed, "workers": args.workers, "jitter": args.jitter}
 
 
 def check_args(args) -> tuple:

@@ -1929,19 +1929,20 @@ def test_run_all_probe_schedule_scores_ges_probes_only(monkeypatch, tmp_path):
 
 def test_run_all_probe_agreement_runs_on_a_tiny_size(smoke_run, capsys):
     """--probe-agreement (issue 17's measurement) on 2 designs x 2 smoke policies, 2 episodes against a
-    one-episode schedule: it prints the same-winner share, rank correlation and both wall times. Bad input
-    exits 2 naming the argument."""
+    one-episode schedule: it prints the same-winner share, rank correlation and both wall times, and with
+    --jitter the ceiling (J against itself on moved designs). Bad input exits 2 naming the argument."""
     ckpts = ",".join(os.path.join(smoke_run, "policies", f"{m}-obstacle-d2", "policy.pt") for m in ("mlp", "moe"))
     assert run_all.main(["--probe-agreement", ckpts, "--designs", "2", "--episodes", "2", "--level-steps", "2",
-                         "--workers", "1"]) == 0
+                         "--workers", "1", "--jitter", "0.01"]) == 0
     out = capsys.readouterr().out
     for text in ("2 uniform D2 designs x 2 checkpoints", "same winner", "Spearman", "wall time: full J",
-                 "issue 17's bar"):
+                 "issue 17's bar", "ceiling: the full J on designs moved by +-1 %"):
         assert text in out, text
     for argv, msg in ((["--probe-agreement", ckpts.split(",")[0]], ">= 2 existing checkpoints"),
                       (["--probe-agreement", ckpts, "--level-steps", "0,2"], "--level-steps 0,2 must be"),
                       (["--probe-agreement", ckpts, "--task", "stairs"], "--task stairs must be one of"),
-                      (["--probe-agreement", ckpts, "--designs", "0"], "--designs 0")):
+                      (["--probe-agreement", ckpts, "--designs", "0"], "--designs 0"),
+                      (["--probe-agreement", ckpts, "--jitter", "1.5"], "--jitter 1.5 must lie in [0, 1)")):
         assert run_all.main(argv) == 2
         assert msg in capsys.readouterr().err, msg
 
