@@ -81,6 +81,11 @@ def ppo_config(preset: Preset) -> ppo.PPOConfig:
                          init_action_mean=preset.ppo_init_action_mean)
 
 
+def start_levels(task: str, preset: Preset):
+    """A fresh training run's curriculum start (a warm start keeps its checkpoint's levels): Preset.ppo_start."""
+    return ballu.train_start_levels(task, preset.score_start_level) if preset.ppo_start == "spread" else 0
+
+
 def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
                  workers: int, label: str) -> str:
     """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
@@ -99,7 +104,8 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
     cfg = ppo_config(preset)   # few lanes stay in-process: a spawned worker costs ~2 s of imports
     env = ballu.make_env(cfg.num_envs, max(1, min(workers, cfg.num_envs // 8)), ballu.BalluConfig(task=task))
     try:
-        ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, log_csv=log, progress=Throttled(label))
+        ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, start_level=start_levels(task, preset),
+                  log_csv=log, progress=Throttled(label))
     finally:
         env.close()
     return ckpt
@@ -128,8 +134,8 @@ class TrainSpecialist:
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
             ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + (round + 1) * self.round_steps,
-                      ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed, log_csv=log,
-                      progress=None)
+                      ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed,
+                      start_level=start_levels(self.task, self.preset), log_csv=log, progress=None)
         finally:
             env.close()
 
@@ -253,6 +259,8 @@ class Preset:
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
     ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
+    ppo_start: str = "spread"   # ours (issue 16): "spread" = lanes start at uniform levels up to J's start
+    #                             (ballu.train_start_levels); "zero" = every lane at level 0
     ges_warm_start: bool = False  # ours, quick only: specialists start from their cell's e2e MLP (paper: random init)
     score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
@@ -1359,7 +1367,9 @@ def report_header(run: Run, manifest: dict) -> list:
             f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
             f"code hash {manifest['code_hash']}",
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
-            f"per update, initial mean action {p.ppo_init_action_mean}); GES {p.ges_round_steps:,} steps per "
+            f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
+            + ("at uniform levels up to the score's start level (ours, issue 16)" if p.ppo_start == "spread"
+               else "at level 0") + f"); GES {p.ges_round_steps:,} steps per "
             f"specialist per round, <= {p.ges_max_rounds} rounds, "
             + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
                if p.ges_warm_start else "") +

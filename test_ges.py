@@ -713,6 +713,8 @@ def test_start_level_argument_errors_name_the_range(text):
     with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
         ppo._levels_arg(text)
     assert ppo._levels_arg("3:9") == (3, 9) and ppo._levels_arg("7") == 7 and ppo._levels_arg("5:5") == (5, 5)
+    assert ppo._levels_arg("spread") == "spread"
+    assert ballu.train_start_levels("obstacle") == (0, 28) and ballu.train_start_levels("ramp", 2) == (0, 2)
 
 
 def test_rollout_split_over_workers_equals_one_process():
