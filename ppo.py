@@ -39,10 +39,11 @@ import torch.nn as nn
 class PPOConfig:
     """PPO settings: [facts] = the authors' runs (ballu_facts.md), [ours] = adapted to a 2-core CPU.
 
-    Issue 16 screened the batch shape, entropy bonus, std bound and reward scale on BALLU (`--protocol`, README "Does PPO learn BALLU?"): none beat
-    these values beyond the seed spread at 1 M steps (obstacle, 3 seeds: more_epochs +1.3 +- 0.9 cm,
-    reward_norm -1.2 +- 1.7; one seed: no_entropy, max_std, fewer_epochs, unscaled_reward lower), so they stay;
-    the lever that helped is where lanes start (ballu.train_start_levels, not a PPO setting)."""
+    Issue 16 screened the batch shape, entropy bonus, std bound and reward scale on BALLU (`--protocol`,
+    README "Does PPO learn BALLU?"): none beat these values beyond the seed spread at 1 M steps (obstacle,
+    3 seeds: more_epochs +1.3 +- 0.9 cm, reward_norm -1.2 +- 1.7; one seed: no_entropy, max_std,
+    fewer_epochs, unscaled_reward lower), so they stay; the lever that helped is where lanes start
+    (ballu.train_start_levels, not a PPO setting)."""
     hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
     init_std: float = 0.5              # [facts] initial action std (state independent)
     init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
