@@ -613,7 +613,7 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     changes = dict(setting)
     start_level = changes.pop("start_level", 0)
     if start_level == "spread":   # each lane starts at a uniform level up to the one the score J starts from
-        start_level = ballu.train_start_levels(task)
+        start_level = ballu.spread_start_levels(task)
     ppo_fields = set(asdict(base_cfg))
     cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
@@ -746,10 +746,10 @@ def _ballu_sampler(name: str):
 
 
 def _levels_arg(text: str):
-    """--start-level: "spread" (ballu.train_start_levels), "L" or "LOW:HIGH", levels in 0..74 (ballu.MAX_LEVEL),
-    LOW <= HIGH."""
+    """--start-level: "task" (ballu.train_start_levels), "spread" (ballu.spread_start_levels), "L" or
+    "LOW:HIGH", levels in 0..74 (ballu.MAX_LEVEL), LOW <= HIGH."""
     import ballu
-    if text == "spread":
+    if text in ("task", "spread"):
         return text
     lo, sep, hi = text.partition(":")
     try:
@@ -757,8 +757,8 @@ def _levels_arg(text: str):
     except ValueError:
         lv = ()
     if not lv or min(lv) < 0 or max(lv) > ballu.MAX_LEVEL or lv[0] > lv[-1]:
-        raise argparse.ArgumentTypeError(f"{text!r} is not 'spread', a level or LOW:HIGH with 0 <= LOW <= HIGH "
-                                         f"<= {ballu.MAX_LEVEL}")
+        raise argparse.ArgumentTypeError(f"{text!r} is not 'task', 'spread', a level or LOW:HIGH with "
+                                         f"0 <= LOW <= HIGH <= {ballu.MAX_LEVEL}")
     return lv if sep else lv[0]
 
 
@@ -775,9 +775,10 @@ def _main(argv=None):
     ap.add_argument("--rollout", type=int, default=PPOConfig.num_steps)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--start-level", type=_levels_arg, default="spread",
-                    help="training curriculum start: 'spread' (default: each lane at a uniform level up to the "
-                         "score's start level, ballu.train_start_levels), a level, or LOW:HIGH per lane")
+    ap.add_argument("--start-level", type=_levels_arg, default="task",
+                    help="training curriculum start: 'task' (default: the task's, ballu.train_start_levels: "
+                         "spread on the ramp, 0 on the obstacle), 'spread' (each lane at a uniform level up to "
+                         "the score's start level), a level, or LOW:HIGH per lane")
     ap.add_argument("--reward", default="paper", choices=("paper", "code"))
     ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
     ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
@@ -832,10 +833,11 @@ def _main(argv=None):
         sampler = _ballu_sampler(args.design)
         env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
         ck = os.path.join(args.train, "policy.pt")
+        start = args.start_level if not isinstance(args.start_level, str) else \
+            {"task": ballu.train_start_levels, "spread": ballu.spread_start_levels}[args.start_level](args.task)
         try:
-            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed,
-                        start_level=ballu.train_start_levels(args.task) if args.start_level == "spread"
-                        else args.start_level, log_csv=os.path.join(args.train, "log.csv"))
+            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=start,
+                        log_csv=os.path.join(args.train, "log.csv"))
         finally:
             env.close()
         plot_learning_curve(os.path.join(args.train, "log.csv"), os.path.join(args.train, "curve.png"),

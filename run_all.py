@@ -83,7 +83,8 @@ def ppo_config(preset: Preset) -> ppo.PPOConfig:
 
 def start_levels(task: str, preset: Preset):
     """A fresh training run's curriculum start (a warm start keeps its checkpoint's levels): Preset.ppo_start."""
-    return ballu.train_start_levels(task, preset.score_start_level) if preset.ppo_start == "spread" else 0
+    starts = {"task": ballu.train_start_levels, "spread": ballu.spread_start_levels, "zero": lambda t, s: 0}
+    return starts[preset.ppo_start](task, preset.score_start_level)
 
 
 def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
@@ -259,8 +260,9 @@ class Preset:
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
     ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
-    ppo_start: str = "spread"   # ours (issue 16): "spread" = lanes start at uniform levels up to J's start
-    #                             (ballu.train_start_levels); "zero" = every lane at level 0
+    ppo_start: str = "task"     # ours (issue 16): "task" = the task's measured default (ballu.train_start_levels:
+    #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
+    #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
     ges_warm_start: bool = False  # ours, quick only: specialists start from their cell's e2e MLP (paper: random init)
     score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
@@ -1373,8 +1375,9 @@ def report_header(run: Run, manifest: dict) -> list:
             f"code hash {manifest['code_hash']}",
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
             f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
-            + ("at uniform levels up to the score's start level (ours, issue 16)" if p.ppo_start == "spread"
-               else "at level 0") + f"); GES {p.ges_round_steps:,} steps per "
+            + {"task": "at uniform levels up to the score's start level on the ramp, at level 0 on the obstacle "
+                       "(ours, issue 16)", "spread": "at uniform levels up to the score's start level (ours, issue 16)",
+               "zero": "at level 0"}[p.ppo_start] + f"); GES {p.ges_round_steps:,} steps per "
             f"specialist per round, <= {p.ges_max_rounds} rounds, "
             + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
                if p.ges_warm_start else "") +

@@ -713,8 +713,11 @@ def test_start_level_argument_errors_name_the_range(text):
     with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
         ppo._levels_arg(text)
     assert ppo._levels_arg("3:9") == (3, 9) and ppo._levels_arg("7") == 7 and ppo._levels_arg("5:5") == (5, 5)
-    assert ppo._levels_arg("spread") == "spread"
-    assert ballu.train_start_levels("obstacle") == (0, 28) and ballu.train_start_levels("ramp", 2) == (0, 2)
+    assert ppo._levels_arg("spread") == "spread" and ppo._levels_arg("task") == "task"
+    assert ballu.spread_start_levels("obstacle") == (0, 28) and ballu.spread_start_levels("ramp", 2) == (0, 2)
+    # the measured per-task default (issue 16): spread on the ramp, level 0 on the obstacle
+    assert ballu.train_start_levels("ramp") == (0, 40) and ballu.train_start_levels("obstacle") == 0
+    assert run_all.start_levels("ramp", run_all.SMOKE) == (0, 2) and run_all.start_levels("obstacle", run_all.QUICK) == 0
 
 
 def test_rollout_split_over_workers_equals_one_process():
