@@ -49,6 +49,7 @@ class PPOConfig:
     init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
     lr: float = 1e-4                   # [facts] initial learning rate, then adaptive KL
     desired_kl: float = 0.01           # [facts] adaptive-KL target
+    max_lr: float = 1e-2               # [facts] (rsl_rl) upper clamp of the adaptive-KL learning rate
     clip: float = 0.2                  # [facts]
     entropy_coef: float = 0.01         # [facts] kept: 0 ended lowest in the screen (J 11.7 vs 21.0, one seed)
     max_std: float = 0.0               # [ours] > 0: the action std is held <= this after each step (0 = free)
@@ -248,7 +249,7 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
             if kl > 2 * cfg.desired_kl:
                 lr = max(1e-5, lr / 1.5)
             elif 0 < kl < cfg.desired_kl / 2:
-                lr = min(1e-2, lr * 1.5)
+                lr = min(cfg.max_lr, lr * 1.5)
             for g in opt.param_groups:
                 g["lr"] = lr
             ratio = torch.exp(logp - batch["logp"][idx])
@@ -596,6 +597,9 @@ PROTOCOL_SETTINGS = {
     "max_std": {"init_action_mean": 0.5, "max_std": 0.5},                     # std held <= its start value
     "reward_norm": {"init_action_mean": 0.5, "reward_norm": True},            # critic targets O(1)
     "more_epochs": {"init_action_mean": 0.5, "epochs": 10, "minibatches": 8},  # 80 gradient steps per batch
+    # the adaptive-KL rate swings 1e-5 <-> 3e-3 within a few updates while ramp runs collapse past 1 M (issue 16)
+    "lr_cap": {"init_action_mean": 0.5, "max_lr": 1e-3, "start_level": "task"},  # rate <= 10x its start;
+    #          on the new default start, so compare with spread_start on the ramp, before on the obstacle
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {"init_action_mean": 0.5, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2,
               "epochs": 3, "start_level": "spread"},
@@ -614,6 +618,8 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     start_level = changes.pop("start_level", 0)
     if start_level == "spread":   # each lane starts at a uniform level up to the one the score J starts from
         start_level = ballu.spread_start_levels(task)
+    elif start_level == "task":   # the task's default (ballu.train_start_levels)
+        start_level = ballu.train_start_levels(task)
     ppo_fields = set(asdict(base_cfg))
     cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
