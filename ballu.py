@@ -272,6 +272,16 @@ def train_start_levels(task: str, score_start: int | None = None):
     return spread_start_levels(task, score_start) if task in SPREAD_START_TASKS else 0
 
 
+def named_start_levels(name: str, task: str, score_start: int | None = None):
+    """A start level by name, the one home of the names ppo.py and run_all.py accept: "task"
+    (train_start_levels), "spread" (spread_start_levels), "zero" (every lane at level 0)."""
+    if name == "zero":
+        return 0
+    if name not in ("task", "spread"):
+        raise ValueError(f"start level name {name!r} must be one of 'task', 'spread', 'zero'")
+    return (train_start_levels if name == "task" else spread_start_levels)(task, score_start)
+
+
 @dataclass
 class BalluConfig:
     """Everything the simulator needs besides a design. Defaults: [paper] where it says, else [facts]."""

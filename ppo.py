@@ -616,10 +616,8 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     os.makedirs(folder, exist_ok=True)
     changes = dict(setting)
     start_level = changes.pop("start_level", 0)
-    if start_level == "spread":   # each lane starts at a uniform level up to the one the score J starts from
-        start_level = ballu.spread_start_levels(task)
-    elif start_level == "task":   # the task's default (ballu.train_start_levels)
-        start_level = ballu.train_start_levels(task)
+    if isinstance(start_level, str):   # "spread" / "task": ballu.named_start_levels
+        start_level = ballu.named_start_levels(start_level, task)
     ppo_fields = set(asdict(base_cfg))
     cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
@@ -839,8 +837,8 @@ def _main(argv=None):
         sampler = _ballu_sampler(args.design)
         env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
         ck = os.path.join(args.train, "policy.pt")
-        start = args.start_level if not isinstance(args.start_level, str) else \
-            {"task": ballu.train_start_levels, "spread": ballu.spread_start_levels}[args.start_level](args.task)
+        start = ballu.named_start_levels(args.start_level, args.task) if isinstance(args.start_level, str) \
+            else args.start_level
         try:
             out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=start,
                         log_csv=os.path.join(args.train, "log.csv"))

@@ -83,8 +83,7 @@ def ppo_config(preset: Preset) -> ppo.PPOConfig:
 
 def start_levels(task: str, preset: Preset):
     """A fresh training run's curriculum start (a warm start keeps its checkpoint's levels): Preset.ppo_start."""
-    starts = {"task": ballu.train_start_levels, "spread": ballu.spread_start_levels, "zero": lambda t, s: 0}
-    return starts[preset.ppo_start](task, preset.score_start_level)
+    return ballu.named_start_levels(preset.ppo_start, task, preset.score_start_level)
 
 
 def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
