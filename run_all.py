@@ -262,7 +262,7 @@ class Preset:
     ppo_start: str = "task"     # ours (issue 16): "task" = the task's measured default (ballu.train_start_levels:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
     #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
-    ges_warm_start: bool = False  # ours, quick only: specialists start from their cell's e2e MLP (paper: random init)
+    ges_warm_start: bool = False  # ours, quick and overnight: specialists start from their cell's e2e MLP (paper: random init)
     score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
 
@@ -292,31 +292,42 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
                probe_level_steps=(2,))
 
-# quick: every table and figure in about 2 h on this 2-core machine, with budgets set by what PPO needs here.
-# PPO on BALLU needs ~300k-800k control steps before its curriculum moves and 2-4 M to reach the J of the
-# README (measured: ppo.py --train). 2 h at ~3,600 control steps/s (one policy per core) is ~25 M steps in
-# total, training and scoring together, so:
-#   - 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 800k      =  8.0 M steps  (~40 min)
-#   - GES specialists start from their cell's e2e MLP (ges_warm_start; ours: with random init the ~45
-#     specialists of Table II, III and Fig. 7 would get < 300k steps each, before PPO learns anything) and
-#     specialise for 2 rounds x 60k: 45 x 120k                                         =  5.4 M steps  (~25 min)
-#   - scores: 24 test designs x (16 Table II + 8 Table III / Fig. 7 sets) + 2 x 45 x 4 probes + 12 TPE
-#     searches x 12 trials + 1 per-design BO trial (800k + J), extrapolated to 12        ~ 40 min
-# Measured: see README (the preset's wall time per stage is in REPORT.md). This arithmetic was made at the old
-# simulator's rates; `python run_all.py --preset quick --plan` redoes it at today's (issue 14's physics is ~4x
-# slower per step; scores reuse episodes, SCORE_PLAYED): 3.1 h on 2 cores, so the preset is to be re-planned
-# (issue 17, item 5).
-# n_test (issue 17): the paired 95 % CI of GES - e2e MLP (obstacle D2) has half-width ~1.96 sd / sqrt(n). In the
-# committed quick run (slewed servo, docs/quick/test_scores.csv) sd = 5.2 cm, so +-2 cm needs n >= 27 (24 gave
-# +-2.1; obstacle D3: sd 6.6 cm, n >= 42). To be re-planned with the presets on the new simulator's rates.
-# GES to its stopping rule (issue 17): coverage growth is set by F / n_init (`python ges.py --sweep`: F 4 with
-# n_init 50 ends at ~20 % after 20 rounds; F 16 with n_init 8 reaches 95 % in 11-17 rounds in D2), and at that
-# size every GES run of this preset costs ~13 h on 2 cores at today's rates (`plan`), not 2 h. Open.
-QUICK = Preset("quick", ppo_steps=800_000, ges_round_steps=60_000, ppo_envs=32, ppo_rollout=64,
-               score_episodes=20, n_test=24, tpe_trials=12, tpe_startup=6, K_d2=3, K_d3=6, ges_max_rounds=2,
-               ges_target_coverage=0.95, ges_probes=4, ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000,
-               ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
+# quick: every table and figure in <= 2 h on this 2-core machine (issue 17, item 5), re-planned on today's rates
+# (`python run_all.py --preset quick --plan`, the arithmetic in `plan` below): 1.97 h with GES at its round cap.
+# What 2 h buys, stage by stage (hours on 2 cores):
+#   - baselines 0.62: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 400k steps. PPO's
+#     curriculum moves from ~300k steps (issue 16's protocol curves); 800k (the old quick) alone would take 1.2 h.
+#   - GES 0.39 + Table III 0.26 + Fig. 7 0.20: specialists start from their cell's e2e MLP (ges_warm_start;
+#     ours: from random init 400k-step policies would get ~45k steps each) and run train / probe / refit until
+#     95 % coverage or 3 rounds (15k steps each, F = 6 probes, each a 20-episode J). Probes are most of GES's
+#     cost (6 x 5.9 core-s per specialist and round against 17 core-s of training), so Fig. 7 runs K = 1, 3, 6,
+#     not the paper's 1-6 (the overnight and paper presets do).
+#   - Table II 0.44: 27 test designs per cell and method (the paired CI of GES - e2e MLP in obstacle D2 has
+#     half-width ~1.96 sd / sqrt(n); sd 5.2 cm in the slewed-servo quick run: n >= 27 for +-2 cm), and TPE design
+#     searches of 8 trials (4 random); cost 0.06: one per-design BO trial, extrapolated to 8.
+# ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
+# won, so its growth per round is set by F / n_init (`python ges.py --sweep`). On the planted landscape, MC
+# coverage after 3 rounds with F = 6 (seeds 0, 1, 2), from 12 %: n_init 2: 16-25 % in D2, 26-36 % in D3; n_init
+# 50: 12-15 %, flat, as in the old quick's real runs (n_init 50, F 4, 2 rounds: 17-42 %). F = 16: 32-50 % and
+# 41-55 %, at 2.7x the probe cost. Reaching 95 % takes ~100 probe J per specialist in D2 and ~200 in D3 (n_init
+# 2, F 8-16: 8-20 rounds), ~4,600 J for this preset's 34 specialists (22 in D2, 12 in D3): 3.8 h of probes
+# alone, so quick reports each run's coverage at its cap, and the overnight preset runs GES to the stopping rule. A cheaper probe score was measured and rejected (BISECTION).
+QUICK = Preset("quick", ppo_steps=400_000, ges_round_steps=15_000, ppo_envs=32, ppo_rollout=64,
+               score_episodes=20, n_test=27, tpe_trials=8, tpe_startup=4, K_d2=3, K_d3=6, ges_max_rounds=3,
+               ges_target_coverage=0.95, ges_probes=6, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
+               ges_fps_pool=10_000, ksens_K=(1, 3, 6),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True)
+
+# overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table
+# and figure, on 2 cores overnight: `--plan` gives 18.8 h with every GES run at its 20-round cap, an upper bound:
+# on the planted landscape n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3 (`ges.py --sweep`).
+# 1M-step policies (issue 16: ramp J 27.4 deg at 1 M with the spread start), 30k steps per specialist and round,
+# 50 test designs (paired CI half-width ~1.4 cm in obstacle D2 at sd 5.2 cm), Fig. 7 at K = 1-6.
+OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
+                   score_episodes=20, n_test=50, tpe_trials=12, tpe_startup=6, K_d2=3, K_d3=6, ges_max_rounds=20,
+                   ges_target_coverage=0.95, ges_probes=16, ges_probe_pool=2000, ges_init_designs=2,
+                   ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
+                   table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True)
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
 # PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For big
@@ -330,7 +341,7 @@ PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_env
                ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=40)
 
-PRESETS = {p.name: p for p in (SMOKE, QUICK, PAPER)}
+PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
 
 # --- what a preset costs (issue 17, item 5): the arithmetic behind every preset's wall time, in code ---------
