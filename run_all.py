@@ -1391,7 +1391,9 @@ def report_header(run: Run, manifest: dict) -> list:
             f"specialist per round, <= {p.ges_max_rounds} rounds, "
             + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
                if p.ges_warm_start else "") +
-            f"F = {p.ges_probes} probes of {p.ges_probe_pool}, target coverage {p.ges_target_coverage:.0%}, "
+            f"F = {p.ges_probes} probes of {p.ges_probe_pool}, {p.ges_init_designs} seed designs per territory "
+            f"(facts: 50{'' if p.ges_init_designs == 50 else '; ours: coverage growth is set by F / n_init'}), "
+            f"target coverage {p.ges_target_coverage:.0%}, "
             f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
             f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}", ""]
 
