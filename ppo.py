@@ -51,7 +51,8 @@ class PPOConfig:
     desired_kl: float = 0.01           # [facts] adaptive-KL target
     max_lr: float = 1e-3               # [ours] upper clamp of the adaptive-KL rate (facts, rsl_rl: 1e-2, which let
     #   the rate jump 1e-5 <-> 1e-2 within a few updates). Protocol `lr_cap` vs `before`/`spread_start`, 3 seeds:
-    #   obstacle J +2.0 +- 0.5 cm at 1 M on every seed; ramp +5.1 +- 7.6 deg at 2 M, worst seed 27.0 not 15.0
+    #   obstacle J +2.0 +- 0.5 cm at 1 M, -2.3 +- 0.6 at 2 M (every seed both times); ramp +1.2 +- 4.2 deg at
+    #   1 M, +5.1 +- 7.6 at 2 M, worst seed 27.0 not 15.0. Chosen for the presets' budgets (<= 1 M per policy).
     clip: float = 0.2                  # [facts]
     entropy_coef: float = 0.01         # [facts] kept: 0 ended lowest in the screen (J 11.7 vs 21.0, one seed)
     max_std: float = 0.0               # [ours] > 0: the action std is held <= this after each step (0 = free)
