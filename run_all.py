@@ -262,7 +262,7 @@ class Preset:
     ppo_start: str = "task"     # ours (issue 16): "task" = the task's measured default (ballu.train_start_levels:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
     #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
-    ges_warm_start: bool = False  # ours, quick and overnight: specialists start from their cell's e2e MLP (paper: random init)
+    ges_warm_start: bool = False  # ours (quick, overnight): specialists start from their cell's e2e MLP (paper: random)
     score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
 
@@ -311,7 +311,8 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 # 50: 12-15 %, flat, as in the old quick's real runs (n_init 50, F 4, 2 rounds: 17-42 %). F = 16: 32-50 % and
 # 41-55 %, at 2.7x the probe cost. Reaching 95 % takes ~100 probe J per specialist in D2 and ~200 in D3 (n_init
 # 2, F 8-16: 8-20 rounds), ~4,600 J for this preset's 34 specialists (22 in D2, 12 in D3): 3.8 h of probes
-# alone, so quick reports each run's coverage at its cap, and the overnight preset runs GES to the stopping rule. A cheaper probe score was measured and rejected (BISECTION).
+# alone, so quick reports each run's coverage at its cap, and the overnight preset runs GES to the stopping
+# rule. A cheaper probe score was measured and rejected (BISECTION).
 QUICK = Preset("quick", ppo_steps=400_000, ges_round_steps=15_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=27, tpe_trials=8, tpe_startup=4, K_d2=3, K_d3=6, ges_max_rounds=3,
                ges_target_coverage=0.95, ges_probes=6, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
