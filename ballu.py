@@ -268,18 +268,24 @@ def train_start_levels(task: str, score_start: int | None = None):
     at 2 M 24.7 +- 5.4 against 22.9 +- 0.7 (+3.8, +9.7, -8.3: seed 2 collapsed to the floor after 0.8 M, as
     `before`'s seed 0 fell from level 9 to 3). Obstacle: at 1 M 19.3 +- 2.0 cm against 17.0 +- 0.9 (+4.3, +2.4,
     -0.1), at 2 M 17.0 +- 2.6 against 19.7 +- 0.7 (+3.2, -6.2, -5.0): no evidence for it, so level 0 stays.
-    The ramp's evidence is at 1 M, the budget run_all's quick preset trains (800k)."""
+    The ramp's evidence is at 1 M, the most any 2-core preset of run_all trains (quick 400k, overnight 1 M)."""
     return spread_start_levels(task, score_start) if task in SPREAD_START_TASKS else 0
 
 
-def named_start_levels(name: str, task: str, score_start: int | None = None):
-    """A start level by name, the one home of the names ppo.py and run_all.py accept: "task"
-    (train_start_levels), "spread" (spread_start_levels), "zero" (every lane at level 0)."""
-    if name == "zero":
+START_LEVEL_NAMES = ("task", "spread", "zero")   # the names ppo.py and run_all.py accept for a start
+
+
+def named_start_levels(start, task: str, score_start: int | None = None):
+    """A training start, by name or as levels, the one home of the names in START_LEVEL_NAMES: "task"
+    (train_start_levels), "spread" (spread_start_levels), "zero" (every lane at level 0); a level L or a
+    (low, high) pair is returned as it is."""
+    if not isinstance(start, str):
+        return start
+    if start not in START_LEVEL_NAMES:
+        raise ValueError(f"start level name {start!r} must be one of {', '.join(START_LEVEL_NAMES)}")
+    if start == "zero":
         return 0
-    if name not in ("task", "spread"):
-        raise ValueError(f"start level name {name!r} must be one of 'task', 'spread', 'zero'")
-    return (train_start_levels if name == "task" else spread_start_levels)(task, score_start)
+    return (train_start_levels if start == "task" else spread_start_levels)(task, score_start)
 
 
 @dataclass

@@ -621,9 +621,7 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     import ballu
     os.makedirs(folder, exist_ok=True)
     changes = dict(setting)
-    start_level = changes.pop("start_level", 0)
-    if isinstance(start_level, str):   # "spread" / "task": ballu.named_start_levels
-        start_level = ballu.named_start_levels(start_level, task)
+    start_level = ballu.named_start_levels(changes.pop("start_level", 0), task)   # "spread" / "task" -> levels
     ppo_fields = set(asdict(base_cfg))
     cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
@@ -756,10 +754,10 @@ def _ballu_sampler(name: str):
 
 
 def _levels_arg(text: str):
-    """--start-level: "task" (ballu.train_start_levels), "spread" (ballu.spread_start_levels), "L" or
-    "LOW:HIGH", levels in 0..74 (ballu.MAX_LEVEL), LOW <= HIGH."""
+    """--start-level: a name of ballu.START_LEVEL_NAMES ("task": ballu.train_start_levels, "spread",
+    "zero"), "L" or "LOW:HIGH", levels in 0..74 (ballu.MAX_LEVEL), LOW <= HIGH."""
     import ballu
-    if text in ("task", "spread"):
+    if text in ballu.START_LEVEL_NAMES:
         return text
     lo, sep, hi = text.partition(":")
     try:
@@ -767,8 +765,8 @@ def _levels_arg(text: str):
     except ValueError:
         lv = ()
     if not lv or min(lv) < 0 or max(lv) > ballu.MAX_LEVEL or lv[0] > lv[-1]:
-        raise argparse.ArgumentTypeError(f"{text!r} is not 'task', 'spread', a level or LOW:HIGH with "
-                                         f"0 <= LOW <= HIGH <= {ballu.MAX_LEVEL}")
+        raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(ballu.START_LEVEL_NAMES)}, a "
+                                         f"level or LOW:HIGH with 0 <= LOW <= HIGH <= {ballu.MAX_LEVEL}")
     return lv if sep else lv[0]
 
 
@@ -843,8 +841,7 @@ def _main(argv=None):
         sampler = _ballu_sampler(args.design)
         env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
         ck = os.path.join(args.train, "policy.pt")
-        start = ballu.named_start_levels(args.start_level, args.task) if isinstance(args.start_level, str) \
-            else args.start_level
+        start = ballu.named_start_levels(args.start_level, args.task)
         try:
             out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=start,
                         log_csv=os.path.join(args.train, "log.csv"))
