@@ -589,6 +589,18 @@ def test_ppo_solves_a_point_mass(tmp_path):
     assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
 
 
+def test_adaptive_kl_rate_is_clamped_at_max_lr(tmp_path):
+    """PPOConfig.max_lr caps the adaptive-KL rate (issue 16: 1e-3, the facts 1e-2): on the point mass the KL
+    stays small, so the rate grows x1.5 per minibatch until it meets the cap, and never passes it."""
+    cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=1e-4, max_lr=2e-4)
+    log = str(tmp_path / "pm.csv")
+    ppo.train("mlp", PointMass(16), None, 6 * cfg.batch, str(tmp_path / "pm.pt"), cfg, seed=0, progress=None,
+              log_csv=log)
+    with open(log) as fh:
+        lrs = [float(row["lr"]) for row in csv_module.DictReader(fh)]
+    assert max(lrs) == pytest.approx(2e-4) and all(lr <= 2e-4 * (1 + 1e-9) for lr in lrs), lrs
+
+
 def test_scale_rewards_divides_by_the_std_of_each_lanes_discounted_return():
     """reward_norm: rewards / std of every lane's discounted return so far (brute force over two rollouts,
     episodes cut by dones, the running statistics carried across); the time-limit bootstrap is added unscaled.
