@@ -492,6 +492,19 @@ def dask_executor(client):
     return ex
 
 
+def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
+    """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
+    a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
+    each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
+    import threading
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(every)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
+
+
 def kill_hook(tag: str) -> None:
     """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
     if os.environ.get("RUN_ALL_FAIL_AT") == tag:
@@ -568,7 +581,8 @@ class Run:
             return dask_executor(dask_client(self.scheduler, self.workers))
         if self.workers <= 1:
             return ges.SerialExecutor()
-        return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
+        return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
+                                   initargs=(os.getpid(),))
 
 
 # --- Table I ------------------------------------------------------------------------------------------------

@@ -1964,6 +1964,45 @@ def test_run_all_probe_agreement_runs_on_a_tiny_size(smoke_run, capsys):
         assert msg in capsys.readouterr().err, msg
 
 
+_ORPHAN_PARENT = """
+import os, sys, time
+import run_all
+ex = run_all.Run(sys.argv[1], run_all.SMOKE, 0, 2).pool()
+pids = sorted({f.result() for f in [ex.submit(os.getpid) for _ in range(8)]})
+busy = [ex.submit(time.sleep, 300) for _ in range(2)]   # in-flight jobs, as a killed stage leaves them
+print(*pids, flush=True)
+time.sleep(300)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"   # a zombie has exited
+    except FileNotFoundError:
+        return False
+
+
+def test_run_all_pool_workers_exit_when_the_run_is_killed(tmp_path):
+    """A run_all killed with SIGKILL must not leave its process-pool workers running their in-flight jobs
+    (run_all.exit_with_parent): both workers are gone within a few seconds of the kill."""
+    import signal
+    import time
+    parent = subprocess.Popen([sys.executable, "-c", _ORPHAN_PARENT, str(tmp_path)], cwd=os.path.dirname(
+        os.path.abspath(__file__)), stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in parent.stdout.readline().split()]
+        assert len(pids) >= 1 and all(_alive(p) for p in pids), pids
+        time.sleep(1.0)                                    # the sleeps are now running in the workers
+    finally:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+    deadline = time.time() + 15
+    while any(_alive(p) for p in pids) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not any(_alive(p) for p in pids), [p for p in pids if _alive(p)]
+
+
 def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
     """--plan's arithmetic (issue 17: presets planned on measured rates) against what the smoke run did: the
     standalone policies' PPO steps, and the control steps of every stored score (score sets and TPE trials),
