@@ -292,36 +292,39 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
                probe_level_steps=(2,))
 
-# quick: every table and figure in <= 2 h on this 2-core machine (issue 17, item 5), re-planned on today's rates
-# (`python run_all.py --preset quick --plan`, the arithmetic in `plan` below): 1.97 h with GES at its round cap.
-# What 2 h buys, stage by stage (hours on 2 cores):
-#   - baselines 0.62: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 400k steps. PPO's
-#     curriculum moves from ~300k steps (issue 16's protocol curves); 800k (the old quick) alone would take 1.2 h.
-#   - GES 0.39 + Table III 0.26 + Fig. 7 0.20: specialists start from their cell's e2e MLP (ges_warm_start;
-#     ours: from random init 400k-step policies would get ~45k steps each) and run train / probe / refit until
-#     95 % coverage or 3 rounds (15k steps each, F = 6 probes, each a 20-episode J). Probes are most of GES's
-#     cost (6 x 5.9 core-s per specialist and round against 17 core-s of training), so Fig. 7 runs K = 1, 3, 6,
-#     not the paper's 1-6 (the overnight and paper presets do).
-#   - Table II 0.44: 27 test designs per cell and method (the paired CI of GES - e2e MLP in obstacle D2 has
-#     half-width ~1.96 sd / sqrt(n); sd 5.2 cm in the slewed-servo quick run: n >= 27 for +-2 cm), and TPE design
-#     searches of 8 trials (4 random); cost 0.06: one per-design BO trial, extrapolated to 8.
+# quick: every table and figure in <= 2 h on this 2-core machine (issue 17, item 5), re-planned on the rates
+# measured 2026-11-25 (TRAIN_RATE, SCORE_RATE above; `python run_all.py --preset quick --plan`): 1.99 h with GES
+# at its round cap. The earlier plan (400k PPO steps, 15k x 3 rounds, F 6, 27 test designs, Fig. 7 at K 1, 3, 6)
+# was 1.97 h at the old rates and is 2.81 h at the measured ones. What 2 h buys, stage by stage (hours on 2 cores):
+#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 300k steps. The cost
+#     of the cut: issue 16's lr_cap runs reach training level 1.4-4.1 (obstacle) and 7-21 (ramp) at 300k, against
+#     2.0-8.5 and 9.5-27.4 at 400k (docs/ppo_protocol/lr_cap/*/seed*/log.csv).
+#   - GES 0.46 + Table III 0.31 + Fig. 7 0.05: specialists start from their cell's e2e MLP (ges_warm_start;
+#     ours: from random init they would get ~30k steps each) and run train / probe / refit until 95 % coverage or
+#     3 rounds (10k steps each, F = 5 probes, each a 20-episode J). Probes are most of GES's cost (5 x 9.4 core-s
+#     per specialist and round against 14 core-s of training), so Fig. 7 runs K = 1 and 3 (GES's own run), not
+#     the paper's 1-6 (the overnight and paper presets do).
+#   - Table II 0.52: 20 test designs per cell and method (the paired CI of GES - e2e MLP in obstacle D2 has
+#     half-width ~1.96 sd / sqrt(n): +-2.3 cm at the slewed-servo quick run's sd of 5.2 cm; 27 designs for +-2 cm
+#     would add 0.12 h), and TPE design searches of 6 trials (3 random); cost 0.06: one per-design BO trial,
+#     extrapolated to 6.
 # ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
 # won, so its growth per round is set by F / n_init (`python ges.py --sweep`). On the planted landscape, MC
 # coverage after 3 rounds with F = 6 (seeds 0, 1, 2), from 12 %: n_init 2: 16-25 % in D2, 26-36 % in D3; n_init
 # 50: 12-15 %, flat, as in the old quick's real runs (n_init 50, F 4, 2 rounds: 17-42 %). F = 16: 32-50 % and
 # 41-55 %, at 2.7x the probe cost. Reaching 95 % takes ~100 probe J per specialist in D2 and ~200 in D3 (n_init
-# 2, F 8-16: 8-20 rounds), ~4,600 J for this preset's 34 specialists (22 in D2, 12 in D3): 3.8 h of probes
-# alone, so quick reports each run's coverage at its cap, and the overnight preset runs GES to the stopping
-# rule. A cheaper probe score was measured and rejected (BISECTION).
-QUICK = Preset("quick", ppo_steps=400_000, ges_round_steps=15_000, ppo_envs=32, ppo_rollout=64,
-               score_episodes=20, n_test=27, tpe_trials=8, tpe_startup=4, K_d2=3, K_d3=6, ges_max_rounds=3,
-               ges_target_coverage=0.95, ges_probes=6, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
-               ges_fps_pool=10_000, ksens_K=(1, 3, 6),
+# 2, F 8-16: 8-20 rounds), ~4,600 J for 34 specialists: 6 h of probes alone at the measured rate, so quick
+# reports each run's coverage at its cap, and the overnight preset runs GES to the stopping rule. A cheaper probe
+# score was measured and rejected (BISECTION).
+QUICK = Preset("quick", ppo_steps=300_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
+               score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, K_d2=3, K_d3=6, ges_max_rounds=3,
+               ges_target_coverage=0.95, ges_probes=5, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
+               ges_fps_pool=10_000, ksens_K=(1, 3),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True)
 
 # overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table
-# and figure, on 2 cores overnight: `--plan` gives 18.8 h with every GES run at its 20-round cap, an upper bound:
-# on the planted landscape n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3 (`ges.py --sweep`).
+# and figure, on 2 cores overnight: `--plan` gives 28.2 h with every GES run at its 20-round cap (18.8 h at
+# the old rates), an upper bound: on the planted landscape n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3 (`ges.py --sweep`).
 # 1M-step policies (issue 16: ramp J 27.4 deg at 1 M with the spread start), 30k steps per specialist and round,
 # 50 test designs (paired CI half-width ~1.4 cm in obstacle D2 at sd 5.2 cm), Fig. 7 at K = 1-6.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
@@ -335,7 +338,7 @@ OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo
 # machines: --workers uses every core. Work at the quick preset's rates: PPO 10 x 20M + 45 specialists x
 # <= 20 rounds x 1M + 40 BO trials x 20M <= 1.9 G steps (~6 days at 3,500 steps/s); probes 45 x 20 x 100 J x
 # 2.9 core-s ~ 1.5 days on 2 cores; test designs 24 x 1000 J x 2.9 core-s ~ 0.4 day: ~8-9 days on 2 cores.
-# At today's rates (`--plan`, GES at its 20-round cap): ~775 core-hours, ~16 days on 2 cores.
+# At today's rates (`--plan`, GES at its 20-round cap): ~1,050 core-hours, ~22 days on 2 cores.
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
                score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
                ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
@@ -346,11 +349,13 @@ PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
 
 # --- what a preset costs (issue 17, item 5): the arithmetic behind every preset's wall time, in code ---------
-# Per-core rates in control steps/s, one job per core with both cores busy, default simulator (issue 14),
-# measured on this VM on 2026-11-23 with nothing else running: PPO training of an e2e MLP on D2 designs
-# ~1,750-1,930 steps/s on 2 cores (issue 16's screen), the 20-episode J 4.5 s per design on 2 cores
-# (8,000 control steps; `--probe-agreement`).
-TRAIN_RATE, SCORE_RATE = 900.0, 890.0
+# Per-core rates in control steps/s as run_all runs its jobs: one single-process job per core, both cores busy,
+# default simulator (issue 14). Measured on this VM on 2026-11-25 with nothing else running, two jobs side by side
+# (`python run_all.py --rates`): PPO training with the quick preset's batch 734 (e2e MLP) and 674 (e2e MoE)
+# steps/s; the 20-episode J of an e2e MLP trained 1 M steps (issue 16's lr_cap, obstacle D2) 8.2 and 10.6 s
+# per design (mean 9.4 s: 560 played steps/s at SCORE_PLAYED). The earlier 900 / 890 came from one job on both
+# cores (`--probe-agreement`, issue 16's screen) and made the quick plan 1.4x too short.
+TRAIN_RATE, SCORE_RATE = 700.0, 560.0
 # Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
 # 0.52, 0.67, 0.65, 0.80 (mean 0.66) for four e2e MLPs at 1 M steps on issue 16's 12 protocol designs
 # (obstacle, from level 28), measured 2026-11-25. The step counts below stay those of every episode.
