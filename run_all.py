@@ -324,7 +324,8 @@ QUICK = Preset("quick", ppo_steps=300_000, ges_round_steps=10_000, ppo_envs=32, 
 
 # overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table
 # and figure, on 2 cores overnight: `--plan` gives 28.2 h with every GES run at its 20-round cap (18.8 h at
-# the old rates), an upper bound: on the planted landscape n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3 (`ges.py --sweep`).
+# the old rates), an upper bound: on the planted landscape n_init 2, F 16 stops after 8-11 rounds in D2 and
+# 9-20 in D3 (`ges.py --sweep`).
 # 1M-step policies (issue 16: ramp J 27.4 deg at 1 M with the spread start), 30k steps per specialist and round,
 # 50 test designs (paired CI half-width ~1.4 cm in obstacle D2 at sd 5.2 cm), Fig. 7 at K = 1-6.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
@@ -351,10 +352,11 @@ PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 # --- what a preset costs (issue 17, item 5): the arithmetic behind every preset's wall time, in code ---------
 # Per-core rates in control steps/s as run_all runs its jobs: one single-process job per core, both cores busy,
 # default simulator (issue 14). Measured on this VM on 2026-11-25 with nothing else running, two jobs side by side
-# (`python run_all.py --rates`): PPO training with the quick preset's batch 734 (e2e MLP) and 674 (e2e MoE)
-# steps/s; the 20-episode J of an e2e MLP trained 1 M steps (issue 16's lr_cap, obstacle D2) 8.2 and 10.6 s
-# per design (mean 9.4 s: 560 played steps/s at SCORE_PLAYED). The earlier 900 / 890 came from one job on both
-# cores (`--probe-agreement`, issue 16's screen) and made the quick plan 1.4x too short.
+# (as `python run_all.py --rates` does): PPO training with the quick preset's batch 734 (e2e MLP) and 674 (e2e
+# MoE) steps/s; the 20-episode J of e2e MLPs trained 1 M steps (issue 16's lr_cap, obstacle D2, seeds 0 and 1;
+# --rates scores its own briefly trained policy, a lower bound) 10.6 and 8.2 s per design (mean 9.4 s: 560 played
+# steps/s at SCORE_PLAYED). The earlier 900 / 890 came from one job on both cores (issue 16's screen,
+# `--probe-agreement`) and made the quick plan 1.4x too short.
 TRAIN_RATE, SCORE_RATE = 700.0, 560.0
 # Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
 # 0.52, 0.67, 0.65, 0.80 (mean 0.66) for four e2e MLPs at 1 M steps on issue 16's 12 protocol designs
@@ -399,6 +401,50 @@ def plan_text(preset: Preset, workers: int = 2) -> str:
               f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
     total = sum(v["hours"] for v in rows.values())
     return "\n".join(lines + [f"  {'total':10s} {total:.2f} h ({total * workers:.0f} core-hours)"])
+
+
+def rate_job(folder: str, kind: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
+    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on obstacle D2
+    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J)."""
+    space = space_of(preset, "obstacle", "d2")
+    t0 = time.time()
+    ckpt = train_policy(folder, kind, "obstacle", ballu.UniformDesign(space), steps, preset, seed, 1, "")
+    t1 = time.time()
+    designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
+    score_policy(ppo.load_policy(ckpt), space.full(designs), "obstacle", preset, 1)
+    return steps / (t1 - t0), (time.time() - t1) / n_designs
+
+
+def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
+                  out: str | None = None) -> dict:
+    """The per-core rates `plan` uses, measured as run_all runs its jobs: `workers` single-process jobs side by
+    side (e2e MLP and MoE alternately), each training then scoring. SCORE_RATE is the played-step rate that makes
+    a J cost what it did: SCORE_PLAYED * 20 episodes * 400 steps / (s per J). A policy trained this briefly sits
+    near the floor, where J's reuse replays less than for a trained one, so the score rate is a lower bound."""
+    import tempfile
+    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
+    ex = Run(folder, preset, 0, workers).pool()
+    try:
+        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), ("mlp", "moe")[i % 2], preset, steps,
+                          n_designs, i) for i in range(workers)]
+        res = [f.result() for f in futs]
+    finally:
+        ex.shutdown(wait=True)
+        if out is None:
+            shutil.rmtree(folder, ignore_errors=True)
+    train, per_J = [r[0] for r in res], [r[1] for r in res]
+    J_steps = preset.score_episodes * ballu.BalluConfig().episode_steps
+    played = SCORE_PLAYED if preset.score_episodes > 1 else 1.0
+    return {"workers": workers, "train_steps_per_s": train, "seconds_per_J": per_J,
+            "train_rate": float(np.mean(train)), "score_rate": float(played * J_steps / np.mean(per_J))}
+
+
+def rates_text(r: dict) -> str:
+    train = ", ".join(f"{x:.0f}" for x in r["train_steps_per_s"])
+    per_J = ", ".join(f"{x:.1f}" for x in r["seconds_per_J"])
+    return (f"{r['workers']} job(s) side by side (e2e MLP, MoE, ...): PPO {train} steps/s; J {per_J} s per design\n"
+            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} (lower bound) against "
+            f"the constants {TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1604,6 +1650,8 @@ def parse(argv):
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
     ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "
                     "--workers cores at the measured rates (run_all.TRAIN_RATE, SCORE_RATE), then exit")
+    ap.add_argument("--rates", action="store_true", help="measure those rates with the preset's batch: --workers "
+                    "jobs side by side, each training 40,960 PPO steps and scoring 3 designs (~2 min), then exit")
     ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(STAGES)}")
     ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
@@ -1745,6 +1793,11 @@ def main(argv=None) -> int:
     try:
         if args.plan:
             print(plan_text(preset, args.workers), flush=True)
+            return 0
+        if args.rates:
+            if args.workers < 1:
+                raise BadInput(f"--workers {args.workers} must be >= 1")
+            print(rates_text(measure_rates(preset, args.workers)), flush=True)
             return 0
         if args.probe_agreement is not None:
             print(probe_agreement_text(probe_agreement(**check_probe_args(args))), flush=True)

@@ -2003,6 +2003,16 @@ def test_run_all_pool_workers_exit_when_the_run_is_killed(tmp_path):
     assert not any(_alive(p) for p in pids), [p for p in pids if _alive(p)]
 
 
+def test_run_all_rates_measure_what_plan_uses(tmp_path):
+    """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: a rate per job, and
+    SCORE_RATE is the J's played steps over its measured seconds (one episode of 400 steps: nothing replayed)."""
+    r = run_all.measure_rates(run_all.SMOKE, workers=1, steps=128, n_designs=1, out=str(tmp_path))
+    assert len(r["train_steps_per_s"]) == len(r["seconds_per_J"]) == 1
+    assert r["train_rate"] > 0 and r["seconds_per_J"][0] > 0
+    assert r["score_rate"] == pytest.approx(ballu.BalluConfig().episode_steps / r["seconds_per_J"][0])
+    assert "TRAIN_RATE" in run_all.rates_text(r)
+
+
 def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
     """--plan's arithmetic (issue 17: presets planned on measured rates) against what the smoke run did: the
     standalone policies' PPO steps, and the control steps of every stored score (score sets and TPE trials),
