@@ -2003,6 +2003,17 @@ def test_run_all_pool_workers_exit_when_the_run_is_killed(tmp_path):
     assert not any(_alive(p) for p in pids), [p for p in pids if _alive(p)]
 
 
+def test_run_all_progress_eta_counts_parallel_units(capsys):
+    """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900."""
+    import time
+    for parallel, want in ((1, 900), (2, 450)):
+        p = run_all.Progress("jobs", 10, every=0, parallel=parallel)
+        p.t0 = time.time() - 100
+        p(1)
+        eta = float(re.search(r"eta\s+(\d+)s", capsys.readouterr().out).group(1))
+        assert abs(eta - want) < 5, (parallel, eta)
+
+
 def test_run_all_rates_measure_what_plan_uses(tmp_path):
     """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: a rate per job, and
     SCORE_RATE is the J's played steps over its measured seconds (one episode of 400 steps: nothing replayed)."""
