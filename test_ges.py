@@ -2049,3 +2049,10 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
 def test_run_all_probe_winners_tie_rule():
     J = np.array([[3, 1, 2, 5], [3, 2, 1, 5], [1, 2, 0, 6]])   # rows: checkpoints, columns: designs
     np.testing.assert_array_equal(run_all.probe_winners(J), [0, 1, 0, 2])   # ties -> lowest index, as GES
+
+
+def test_run_all_cost_claim_needs_a_saving_beyond_the_drift():
+    """One timing per side has no CI: a 0.4 % saving (the quick rerun's) is 'not resolved', not 'supported'."""
+    for red, want in ((0.4, "not resolved"), (37.0, "supported"), (-30.0, "not supported")):
+        rows = [l for l in run_all.report_claims({"cost": {"reduction_pct": red}}) if "per-design BO" in l]
+        assert len(rows) == 1 and f"| {want} |" in rows[0], (red, rows)
