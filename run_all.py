@@ -364,6 +364,11 @@ TRAIN_RATE, SCORE_RATE = 700.0, 560.0
 SCORE_PLAYED = 0.66
 
 
+def played_share(preset: Preset) -> float:
+    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
+    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
+
+
 def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
     """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
     trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing,
@@ -386,7 +391,7 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
             "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
             "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0])}
-    played = SCORE_PLAYED if p.score_episodes > 1 else 1.0   # one episode has nothing to reuse
+    played = played_share(p)
     return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
                     "hours": (w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / workers / 3600}
             for stage, w in work.items()}
@@ -434,9 +439,8 @@ def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_des
             shutil.rmtree(folder, ignore_errors=True)
     train, per_J = [r[0] for r in res], [r[1] for r in res]
     J_steps = preset.score_episodes * ballu.BalluConfig().episode_steps
-    played = SCORE_PLAYED if preset.score_episodes > 1 else 1.0
     return {"workers": workers, "train_steps_per_s": train, "seconds_per_J": per_J,
-            "train_rate": float(np.mean(train)), "score_rate": float(played * J_steps / np.mean(per_J))}
+            "train_rate": float(np.mean(train)), "score_rate": float(played_share(preset) * J_steps / np.mean(per_J))}
 
 
 def rates_text(r: dict) -> str:
