@@ -650,6 +650,8 @@ PROTOCOL_SETTINGS = {
     "squash": {**LR_CAP, "squash": True, "init_action_mean": 0.0, "init_std": 2.0},   # sigmoid(u): a-space std
     #          0.31 at the start, as the clipped N(0.5, 0.5)'s 0.36
     "split_clip": {**LR_CAP, "split_clip": True},                   # actor and critic clipped apart
+    "code_reward": {**LR_CAP, "reward_form": "code"},               # the authors' code's reward terms
+    "obs_clip10": {**LR_CAP, "obs_clip": 10.0},                     # normalised observations clipped at 10, not 5
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},

@@ -895,7 +895,60 @@ def test_gaussian_log_prob_and_entropy_match_torch_normal():
     act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
     ref = torch.distributions.Normal(mu, log_std.exp())
     torch.testing.assert_close(ppo.gaussian_log_prob(act, mu, log_std), ref.log_prob(act).sum(-1))
-    torch.testing.assert_close((log_std + 0.5 * math.log(2 * math.pi * math.e)).sum(), ref.entropy().sum(-1)[0])
+    torch.testing.assert_close(ppo.entropy_bonus(mu, log_std, {}, None, ppo.PPOConfig()), ref.entropy().sum(-1)[0])
+
+
+@pytest.mark.parametrize("m, s", [(0.0, 2.0), (1.5, 0.7), (-3.0, 1.2)])
+def test_squashed_entropy_matches_numerical_integration(m, s):
+    """The squashed policy's entropy bonus (its Gaussian entropy plus E log sigmoid'(u), on the minibatch's
+    samples) equals -int p(a) log p(a) da of a = sigmoid(u), u ~ N(m, s), integrated numerically, with
+    p(a) = N(logit a; m, s) / (a (1 - a)) (change of variables). Both action dims alike: twice the 1-D value."""
+    from scipy import integrate, special
+    pdf = lambda a: stats.norm.pdf(special.logit(a), m, s) / (a * (1 - a))
+    ref = integrate.quad(lambda a: -pdf(a) * math.log(pdf(a)) if pdf(a) > 0 else 0.0, 0, 1, limit=400,
+                         points=[special.expit(m)])[0]
+    n = 200_000
+    eps = torch.from_numpy(np.random.default_rng(0).standard_normal((n, 2)).astype(np.float32))
+    mu, log_std = torch.full((n, 2), m), torch.full((2,), math.log(s))
+    batch = {"act": mu + s * eps, "mu": mu, "std": torch.full((n, 2), s)}
+    got = ppo.entropy_bonus(mu, log_std, batch, torch.arange(n), ppo.PPOConfig(squash=True))
+    assert abs(float(got) - 2 * ref) < 0.01
+
+
+def test_squash_sends_sigmoid_actions_and_policy_fn_plays_the_squashed_mean():
+    """squash=True: the env gets sigmoid(u) in (0, 1); the deterministic policy plays sigmoid(mean); off, u."""
+    u = np.array([[-30.0, 0.0], [2.0, 30.0]])
+    np.testing.assert_allclose(ppo.to_env(u, ppo.PPOConfig(squash=True)), [[0.0, 0.5], [1 / (1 + math.exp(-2)), 1.0]],
+                               atol=1e-12)
+    assert ppo.to_env(u, ppo.PPOConfig()) is u
+    torch.manual_seed(0)
+    pol, norm = ppo.make_policy("mlp", 5, 2), ppo.RunningNorm(5)
+    obs = np.random.default_rng(0).standard_normal((3, 5))
+    plain, squashed = ppo.PolicyFn(pol, norm)(obs), ppo.PolicyFn(pol, norm, ppo.PPOConfig(squash=True))(obs)
+    np.testing.assert_allclose(squashed, 1 / (1 + np.exp(-plain)), rtol=1e-12)
+
+
+def test_split_clip_bounds_actor_and_critic_gradients_apart():
+    """split_clip: each of actor and critic is clipped to max_grad_norm on its own, so a large critic gradient
+    no longer shrinks the actor's; the joint clip [facts] scales both by the same factor."""
+    torch.manual_seed(0)
+    for kind in ("mlp", "moe"):
+        pol = ppo.make_policy(kind, ballu.OBS_DIM, 2)
+        critic = list(pol.critic.parameters())
+        actor = [p for p in pol.parameters() if all(p is not c for c in critic)]
+        norm_of = lambda ps: float(torch.sqrt(sum((p.grad ** 2).sum() for p in ps)))
+        for split in (False, True):
+            for p in actor:
+                p.grad = torch.full_like(p, 1e-4)
+            for p in critic:
+                p.grad = torch.full_like(p, 1.0)
+            a0 = norm_of(actor)
+            ppo.clip_gradients(pol, ppo.PPOConfig(split_clip=split))
+            assert norm_of(critic) == pytest.approx(0.5, rel=1e-4)
+            if split:
+                assert norm_of(actor) == pytest.approx(a0, rel=1e-5)   # small: left alone
+            else:
+                assert norm_of(actor) < a0 / 50                         # shrunk with the critic
 
 
 def test_moe_gate_weights_sum_to_one_and_get_gradients():
