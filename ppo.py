@@ -245,15 +245,15 @@ def scale_rewards(buf, acc, ret_norm: RunningNorm, cfg: PPOConfig) -> np.ndarray
     return (buf["rew"] / np.sqrt(ret_norm.var[0] + 1e-8)).astype(np.float32) + buf["boot"]
 
 
-def entropy_bonus(mu, log_std, batch, idx, cfg: PPOConfig):
+def entropy_bonus(mu, log_std, act, old_mu, old_std, cfg: PPOConfig):
     """The policy's entropy for the bonus. Of N(mu, std) it is state independent; of the squashed action
-    a = sigmoid(u) it is that plus E[log sigmoid'(u)], estimated on the minibatch's samples moved with the new
-    mean and std (u = mu + std * eps, eps as drawn in the rollout), so widening u into the flat ends of the
-    sigmoid earns no bonus."""
+    a = sigmoid(u) it is that plus E[log sigmoid'(u)], estimated on the minibatch's samples `act` (drawn as
+    old_mu + old_std * eps in the rollout) moved with the new mean and std (u = mu + std * eps), so widening u
+    into the flat ends of the sigmoid earns no bonus."""
     h = (log_std + 0.5 * math.log(2 * math.pi * math.e)).sum()
     if not cfg.squash:
         return h
-    eps = (batch["act"][idx] - batch["mu"][idx]) / batch["std"][idx]
+    eps = (act - old_mu) / old_std
     u = mu + log_std.exp() * eps
     return h - (nn.functional.softplus(u) + nn.functional.softplus(-u)).sum(-1).mean()
 
@@ -298,7 +298,7 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
             a = adv[idx]
             policy_loss = -torch.min(ratio * a, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * a).mean()
             value_loss = (policy.value(obs) - batch["ret"][idx]).pow(2).mean()
-            entropy = entropy_bonus(mu, log_std, batch, idx, cfg)
+            entropy = entropy_bonus(mu, log_std, act, old_mu, old_std, cfg)
             loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy + policy.aux_loss(obs)
             opt.zero_grad()
             loss.backward()
@@ -645,9 +645,8 @@ PROTOCOL_SETTINGS = {
     "reward_norm": {**BEFORE, "reward_norm": True},                 # critic targets O(1)
     "more_epochs": {**BEFORE, "epochs": 10, "minibatches": 8},      # 80 gradient steps per batch
     # the adaptive-KL rate swings 1e-5 <-> 3e-3 within a few updates while ramp runs collapse past 1 M (issue 16)
-    "lr_cap": LR_CAP,  # rate <= 10x its start, on
-    #          the task's default start: today's defaults (compare with spread_start on the ramp, before on the
-    #          obstacle)
+    "lr_cap": LR_CAP,   # rate <= 10x its start, on the task's default start: today's defaults (compare with
+    #                     spread_start on the ramp, before on the obstacle)
     # issue 16, later screens, each one lever changed from today's defaults (lr_cap)
     "squash": {**LR_CAP, "squash": True, "init_action_mean": 0.0, "init_std": 2.0},   # sigmoid(u): a-space std
     #          0.31 at the start, as the clipped N(0.5, 0.5)'s 0.36

@@ -895,7 +895,7 @@ def test_gaussian_log_prob_and_entropy_match_torch_normal():
     act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
     ref = torch.distributions.Normal(mu, log_std.exp())
     torch.testing.assert_close(ppo.gaussian_log_prob(act, mu, log_std), ref.log_prob(act).sum(-1))
-    torch.testing.assert_close(ppo.entropy_bonus(mu, log_std, {}, None, ppo.PPOConfig()), ref.entropy().sum(-1)[0])
+    torch.testing.assert_close(ppo.entropy_bonus(mu, log_std, act, mu, log_std.exp(), ppo.PPOConfig()), ref.entropy().sum(-1)[0])
 
 
 @pytest.mark.parametrize("m, s", [(0.0, 2.0), (1.5, 0.7), (-3.0, 1.2)])
@@ -910,8 +910,7 @@ def test_squashed_entropy_matches_numerical_integration(m, s):
     n = 200_000
     eps = torch.from_numpy(np.random.default_rng(0).standard_normal((n, 2)).astype(np.float32))
     mu, log_std = torch.full((n, 2), m), torch.full((2,), math.log(s))
-    batch = {"act": mu + s * eps, "mu": mu, "std": torch.full((n, 2), s)}
-    got = ppo.entropy_bonus(mu, log_std, batch, torch.arange(n), ppo.PPOConfig(squash=True))
+    got = ppo.entropy_bonus(mu, log_std, mu + s * eps, mu, torch.full((n, 2), s), ppo.PPOConfig(squash=True))
     assert abs(float(got) - 2 * ref) < 0.01
 
 
