@@ -45,7 +45,9 @@ class PPOConfig:
     fewer_epochs, unscaled_reward lower), so they stay. Two levers helped: where lanes start
     (ballu.train_start_levels, not a PPO setting) and the adaptive-KL rate's cap (max_lr). Later screens against
     today's defaults (obstacle, 1 M): split_clip +0.5 +- 1.0 cm (3 seeds); squash, the authors' reward terms and
-    obs_clip 10 no better (one seed: 16.3, 14.4, 20.1 cm against 20.3), so squash and split_clip stay off."""
+    obs_clip 10 no better (one seed: 16.3, 14.4, 20.1 cm against 20.3), so squash and split_clip stay off.
+    max_std 0.4 from the start (`std_cap`, to 2 M) is no better either: ramp J -3.3 +- 0.3 deg at 1 M and
+    -4.2 +- 0.5 at 2 M (2 seeds), obstacle not better beyond the seed spread at 2 M, so max_std stays free."""
     hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
     init_std: float = 0.5              # [facts] initial action std (state independent)
     init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
@@ -655,7 +657,8 @@ PROTOCOL_SETTINGS = {
     "obs_clip10": {**LR_CAP, "obs_clip": 10.0},                     # normalised observations clipped at 10, not 5
     # past 1 M the entropy bonus widens the std again (lr_cap obstacle seed 0: 0.40 at 1 M, 0.63 at 3 M) while the
     # training level falls (11.0 -> 8.9); held at 0.4 from lr_cap's 1 M checkpoint it rose to 16.1 at 2 M instead
-    "std_cap": {**LR_CAP, "max_std": 0.4},                          # to screen from scratch (issue 16, next)
+    "std_cap": {**LR_CAP, "max_std": 0.4},                          # held <= 0.4 from the start: screened,
+    #          not adopted (obstacle no better at 2 M, ramp -3.3 deg at 1 M on both seeds; README "Longer training")
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
