@@ -666,6 +666,13 @@ PROTOCOL_SETTINGS = {
 PROTOCOL_DESIGN_SEED = 16   # the 12 held-out D2 designs: the same for every setting, task and seed
 
 
+def protocol_designs(n_designs: int = 12) -> np.ndarray:
+    """The protocol's held-out D2 designs (full design vectors): one seeded uniform draw, so every setting, task,
+    seed and fork is scored on the same designs."""
+    import ballu
+    return ballu.d2().full(ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs))
+
+
 def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg):
     """Train one (setting, task, seed) to each milestone in turn; J on the held-out designs at each one.
     Resumable: a milestone's result is kept in result_<steps>.json."""
@@ -736,8 +743,7 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
     unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
     if unknown:
         raise ValueError(f"settings {unknown} unknown: one of {sorted(PROTOCOL_SETTINGS)}")
-    theta = ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs)
-    designs = ballu.d2().full(theta)
+    designs = protocol_designs(n_designs)
     runs = [(s, t, seed) for s in settings for t in tasks for seed in seeds]
     results, t_start = {}, time.time()
     for i, (s, t, seed) in enumerate(runs):

@@ -895,7 +895,8 @@ def test_gaussian_log_prob_and_entropy_match_torch_normal():
     act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
     ref = torch.distributions.Normal(mu, log_std.exp())
     torch.testing.assert_close(ppo.gaussian_log_prob(act, mu, log_std), ref.log_prob(act).sum(-1))
-    torch.testing.assert_close(ppo.entropy_bonus(mu, log_std, act, mu, log_std.exp(), ppo.PPOConfig()), ref.entropy().sum(-1)[0])
+    torch.testing.assert_close(ppo.entropy_bonus(mu, log_std, act, mu, log_std.exp(), ppo.PPOConfig()),
+                               ref.entropy().sum(-1)[0])
 
 
 @pytest.mark.parametrize("m, s", [(0.0, 2.0), (1.5, 0.7), (-3.0, 1.2)])

@@ -5,15 +5,12 @@ result_1000000.json and the log rows up to the checkpoint's steps into FOLDER, t
     PYTHONPATH=. python docs/ppo_long/fork_std04_from_lr_cap_1M/fork.py FOLDER
 (on the committed folder it resumes: every milestone is already scored)."""
 import sys
-import numpy as np
-import ballu
 import ppo
 
 
 def main(folder):
-    theta = ballu.d2().sample_uniform(np.random.default_rng(ppo.PROTOCOL_DESIGN_SEED), 12)
     res = ppo._protocol_run(folder, {**ppo.LR_CAP, "max_std": 0.4}, "obstacle", 0, [1_000_000, 2_000_000, 3_000_000],
-                            ballu.d2().full(theta), 20, 2, ppo.PPOConfig())
+                            ppo.protocol_designs(12), 20, 2, ppo.PPOConfig())
     for r in res:
         print(r["steps"], round(r["mean_J"], 1), round(r["train_level"], 1), flush=True)
 
