@@ -659,6 +659,9 @@ PROTOCOL_SETTINGS = {
     # training level falls (11.0 -> 8.9); held at 0.4 from lr_cap's 1 M checkpoint it rose to 16.1 at 2 M instead
     "std_cap": {**LR_CAP, "max_std": 0.4},                          # held <= 0.4 from the start: screened,
     #          not adopted (obstacle no better at 2 M, ramp -3.3 deg at 1 M on both seeds; README "Longer training")
+    # lr_cap's capped rate kept the ramp's spread start from collapsing past 1 M; on the obstacle spread_start was
+    # only tried with the facts' 1e-2 (+2.2 cm at 1 M, -2.7 at 2 M with two seeds collapsing): both levers at once
+    "lr_cap_spread": {**LR_CAP, "start_level": "spread"},           # = lr_cap on the ramp (spread is its default)
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
