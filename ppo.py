@@ -676,9 +676,11 @@ def protocol_designs(n_designs: int = 12) -> np.ndarray:
     return ballu.d2().full(ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs))
 
 
-def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg):
+def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg, rescore=False):
     """Train one (setting, task, seed) to each milestone in turn; J on the held-out designs at each one.
-    Resumable: a milestone's result is kept in result_<steps>.json."""
+    Resumable: a milestone's result is kept in result_<steps>.json. rescore: a result scored on another CPU model
+    is scored again here from its policy_<steps>.pt (J differs between CPU models, see cpu_model), kept beside the
+    first score under "rescored", and returned in its place, so one table holds one machine's scores."""
     import json
     import shutil
     import ballu
@@ -693,7 +695,18 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
         path = os.path.join(folder, f"result_{m}.json")
         if os.path.exists(path):
             with open(path) as f:
-                out.append(json.load(f))
+                res = json.load(f)
+            here = cpu_model()
+            if rescore and res.get("cpu") != here:
+                if here not in res.setdefault("rescored", {}):
+                    t0 = time.time()
+                    J = ballu.score(load_policy(os.path.join(folder, f"policy_{m}.pt")), designs, task,
+                                    episodes=episodes, workers=workers, cfg=bcfg)
+                    res["rescored"][here] = {"J": J.tolist(), "mean_J": float(J.mean()), "score_s": time.time() - t0}
+                    with open(path, "w") as f:
+                        json.dump(res, f)
+                res = {**res, **res["rescored"][here], "cpu": here}
+            out.append(res)
             continue
         env = ballu.make_env(cfg.num_envs, workers, bcfg)
         t0 = time.time()
@@ -738,10 +751,11 @@ def _mean_se(values) -> str:
 
 def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(0, 1, 2),
              milestones=(1_000_000, 2_000_000), n_designs: int = 12, episodes: int = 20, workers: int = 2,
-             base_cfg: PPOConfig = PPOConfig(), progress=print) -> str:
+             base_cfg: PPOConfig = PPOConfig(), progress=print, rescore: bool = False, table: str = "protocol") -> str:
     """e2e MLP trained on uniform D2 designs per (setting, task, seed); J over `n_designs` fixed held-out D2 designs
-    at each milestone; a table (mean and standard error over seeds) in out/protocol.md and the training-level
-    curves in out/protocol_curves.png. All settings share designs, budgets, seeds and code. Resumable."""
+    at each milestone; a table (mean and standard error over seeds) in out/<table>.md and the training-level
+    curves in out/<table>_curves.png. All settings share designs, budgets, seeds and code. Resumable.
+    rescore: results scored on another CPU model are scored again on this one (_protocol_run)."""
     import ballu
     unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
     if unknown:
@@ -752,7 +766,7 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
     for i, (s, t, seed) in enumerate(runs):
         folder = os.path.join(out, s, t, f"seed{seed}")
         results[(s, t, seed)] = _protocol_run(folder, PROTOCOL_SETTINGS[s], t, seed, milestones, designs, episodes,
-                                              workers, base_cfg)
+                                              workers, base_cfg, rescore)
         if progress:
             eta = (time.time() - t_start) / (i + 1) * (len(runs) - i - 1)
             last = results[(s, t, seed)][-1]
@@ -772,9 +786,9 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
             f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows)
             + f"\n\nScored on: {'; '.join(cpus)}" + (" (J differs between CPU models: compare scores made on one)"
                                                     if len(cpus) > 1 else "") + "\n")
-    with open(os.path.join(out, "protocol.md"), "w") as f:
+    with open(os.path.join(out, f"{table}.md"), "w") as f:
         f.write(text)
-    _protocol_curves(out, settings, tasks, seeds, os.path.join(out, "protocol_curves.png"))
+    _protocol_curves(out, settings, tasks, seeds, os.path.join(out, f"{table}_curves.png"))
     return text
 
 
@@ -861,6 +875,9 @@ def _main(argv=None):
     ap.add_argument("--tasks", default="obstacle,ramp", help="protocol tasks, comma list")
     ap.add_argument("--seeds", default="0,1,2", help="protocol seeds, comma list")
     ap.add_argument("--milestones", default="1000000,2000000", help="protocol: control steps at which J is scored")
+    ap.add_argument("--rescore", action="store_true", help="protocol: score again on this CPU model the results "
+                    "scored on another (J differs between CPU models), and table this machine's scores")
+    ap.add_argument("--table", default="protocol", help="protocol: the table's name (NAME.md, NAME_curves.png)")
     args = ap.parse_args(argv)
     checks = (("--steps", args.steps, ">= 1", args.steps >= 1),
               ("--envs", args.envs, ">= 1", args.envs >= 1),
@@ -894,8 +911,11 @@ def _main(argv=None):
             ap.error("--seeds and --milestones must be comma lists of integers")
         if min(seeds) < 0 or milestones[0] < 1:
             ap.error("--seeds must be >= 0 and --milestones >= 1")
+        if not args.table or os.sep in args.table:
+            ap.error(f"--table {args.table!r} must be a plain file name (no {os.sep!r})")
         print(protocol(args.protocol, settings, tasks, seeds, milestones, workers=args.workers,
-                       base_cfg=PPOConfig(num_envs=args.envs, num_steps=args.rollout)))
+                       base_cfg=PPOConfig(num_envs=args.envs, num_steps=args.rollout), rescore=args.rescore,
+                       table=args.table))
     if args.bench:
         bench(cfg, bcfg, args.workers)
     if args.train:

@@ -887,6 +887,18 @@ def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     assert os.path.getmtime(tmp_path / "before/obstacle/seed0/policy.pt") == stamp
     with pytest.raises(ValueError, match="unknown"):
         ppo.protocol(str(tmp_path), **dict(kw, settings=("nope",)))
+    # rescore: a result scored on another CPU model is scored again here from its milestone checkpoint, kept
+    # beside the first score, and tabled in its place; here the same machine must give the same J
+    path = tmp_path / "before/obstacle/seed1/result_256.json"
+    res = json.loads(path.read_text())
+    path.write_text(json.dumps({**res, "cpu": "another CPU", "mean_J": -1.0}))
+    assert "another CPU" in ppo.protocol(str(tmp_path), **kw)     # without rescore: the file's own score
+    again = ppo.protocol(str(tmp_path), **dict(kw, rescore=True, table="here"))
+    assert again == text and (tmp_path / "here.md").read_text() == text
+    kept = json.loads(path.read_text())
+    assert kept["mean_J"] == -1.0 and kept["rescored"][ppo.cpu_model()]["J"] == res["J"]
+    stamp = os.path.getmtime(path)
+    assert ppo.protocol(str(tmp_path), **dict(kw, rescore=True)) == text and os.path.getmtime(path) == stamp
 
 
 def test_gaussian_log_prob_and_entropy_match_torch_normal():
