@@ -267,7 +267,9 @@ def train_start_levels(task: str, score_start: int | None = None):
     level 0. Ramp: at 1 M steps 27.4 +- 2.4 deg against 20.3 +- 2.1, higher on every seed (+6.4, +8.0, +6.8);
     at 2 M 24.7 +- 5.4 against 22.9 +- 0.7 (+3.8, +9.7, -8.3: seed 2 collapsed to the floor after 0.8 M, as
     `before`'s seed 0 fell from level 9 to 3). Obstacle: at 1 M 19.3 +- 2.0 cm against 17.0 +- 0.9 (+4.3, +2.4,
-    -0.1), at 2 M 17.0 +- 2.6 against 19.7 +- 0.7 (+3.2, -6.2, -5.0): no evidence for it, so level 0 stays.
+    -0.1), at 2 M 17.0 +- 2.6 against 19.7 +- 0.7 (+3.2, -6.2, -5.0): no evidence for it, so level 0 stays;
+    with the capped rate (`lr_cap_spread` against `lr_cap`, all scored on one AMD EPYC) +0.1 +- 1.0 cm at 1 M
+    and +1.4 +- 2.2 at 2 M: still none.
     The ramp's evidence is at 1 M, the most any 2-core preset of run_all trains (quick 300k, overnight 1 M;
     run_all.QUICK and run_all.OVERNIGHT)."""
     return spread_start_levels(task, score_start) if task in SPREAD_START_TASKS else 0
