@@ -47,7 +47,10 @@ class PPOConfig:
     today's defaults (obstacle, 1 M): split_clip +0.5 +- 1.0 cm (3 seeds); squash, the authors' reward terms and
     obs_clip 10 no better (one seed: 16.3, 14.4, 20.1 cm against 20.3), so squash and split_clip stay off.
     max_std 0.4 from the start (`std_cap`, to 2 M) is no better either: ramp J -3.3 +- 0.3 deg at 1 M and
-    -4.2 +- 0.5 at 2 M (2 seeds), obstacle not better beyond the seed spread at 2 M, so max_std stays free."""
+    -4.2 +- 0.5 at 2 M (2 seeds), obstacle not better beyond the seed spread at 2 M, so max_std stays free.
+    The spread start on the obstacle with the capped rate (`lr_cap_spread`) is no better either (+0.1 +- 1.0 cm
+    at 1 M, +1.4 +- 2.2 at 2 M, 3 seeds). One checkpoint's obstacle J moves ~1.7 cm (SD) between CPU models,
+    as much as any obstacle lever screened (README "One machine's scores"); the ramp's J moves 0.5 deg."""
     hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
     init_std: float = 0.5              # [facts] initial action std (state independent)
     init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
