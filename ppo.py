@@ -697,12 +697,12 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
     ckpt, log_csv, out = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv"), []
+    here = cpu_model()
     for m in milestones:
         path = os.path.join(folder, f"result_{m}.json")
         if os.path.exists(path):
             with open(path) as f:
                 res = json.load(f)
-            here = cpu_model()
             if rescore and res.get("cpu") != here:
                 if here not in res.setdefault("rescored", {}):
                     t0 = time.time()
