@@ -712,7 +712,8 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
                                              "rescore_s": time.time() - t0}   # the run's wall time stays its own
                     with open(path, "w") as f:
                         json.dump(res, f)
-                res = {**res, **res["rescored"][here], "cpu": here}
+                res = {**res, **res["rescored"][here], "cpu": here,
+                       "first_score": {"cpu": res.get("cpu", "not recorded"), "mean_J": res["mean_J"]}}
             out.append(res)
             continue
         env = ballu.make_env(cfg.num_envs, workers, bcfg)
@@ -792,11 +793,27 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
     text = (f"J over {n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED}), {episodes} episodes each; "
             f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows)
             + f"\n\nScored on: {'; '.join(cpus)}" + (" (J differs between CPU models: compare scores made on one)"
-                                                    if len(cpus) > 1 else "") + "\n")
+                                                    if len(cpus) > 1 else "") + "\n" + _rescore_lines(results, tasks))
     with open(os.path.join(out, f"{table}.md"), "w") as f:
         f.write(text)
     _protocol_curves(out, settings, tasks, seeds, os.path.join(out, f"{table}_curves.png"))
     return text
+
+
+def _rescore_lines(results, tasks) -> str:
+    """Per task, how far the rescored results' mean J moved from their first score on another CPU model: the
+    scoring noise that rounding alone puts into one checkpoint's J (README "One machine's scores")."""
+    lines = []
+    for t in tasks:
+        first = [x["first_score"] for (_, task, _), r in results.items() if task == t for x in r if "first_score" in x]
+        moved = np.array([x["mean_J"] for (_, task, _), r in results.items() if task == t for x in r
+                          if "first_score" in x]) - [f["mean_J"] for f in first]
+        if len(moved):
+            spread = f", SD {moved.std(ddof=1):.2f}" if len(moved) > 1 else ""
+            lines.append(f"Rescored here: {len(moved)} {t} results first scored on "
+                         f"{'; '.join(sorted({f['cpu'] for f in first}))}; mean J moved {moved.mean():+.2f} on "
+                         f"average{spread}, at most {np.abs(moved).max():.2f}.\n")
+    return "".join(lines)
 
 
 def _protocol_curves(out, settings, tasks, seeds, path):

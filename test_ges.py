@@ -894,11 +894,13 @@ def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     path.write_text(json.dumps({**res, "cpu": "another CPU", "mean_J": -1.0}))
     assert "another CPU" in ppo.protocol(str(tmp_path), **kw)     # without rescore: the file's own score
     again = ppo.protocol(str(tmp_path), **dict(kw, rescore=True, table="here"))
-    assert again == text and (tmp_path / "here.md").read_text() == text
+    assert again == text + (f"Rescored here: 1 obstacle results first scored on another CPU; mean J moved "
+                            f"{res['mean_J'] + 1:+.2f} on average, at most {abs(res['mean_J'] + 1):.2f}.\n")
+    assert (tmp_path / "here.md").read_text() == again
     kept = json.loads(path.read_text())
     assert kept["mean_J"] == -1.0 and kept["rescored"][ppo.cpu_model()]["J"] == res["J"]
     stamp = os.path.getmtime(path)
-    assert ppo.protocol(str(tmp_path), **dict(kw, rescore=True)) == text and os.path.getmtime(path) == stamp
+    assert ppo.protocol(str(tmp_path), **dict(kw, rescore=True)) == again and os.path.getmtime(path) == stamp
 
 
 def test_gaussian_log_prob_and_entropy_match_torch_normal():
