@@ -805,10 +805,10 @@ def _rescore_lines(results, tasks) -> str:
     scoring noise that rounding alone puts into one checkpoint's J (README "One machine's scores")."""
     lines = []
     for t in tasks:
-        first = [x["first_score"] for (_, task, _), r in results.items() if task == t for x in r if "first_score" in x]
-        moved = np.array([x["mean_J"] for (_, task, _), r in results.items() if task == t for x in r
-                          if "first_score" in x]) - [f["mean_J"] for f in first]
-        if len(moved):
+        pairs = [(x["mean_J"], x["first_score"]) for (_, task, _), r in results.items() if task == t for x in r
+                 if "first_score" in x]
+        if pairs:
+            moved, first = np.array([j - f["mean_J"] for j, f in pairs]), [f for _, f in pairs]
             spread = f", SD {moved.std(ddof=1):.2f}" if len(moved) > 1 else ""
             lines.append(f"Rescored here: {len(moved)} {t} results first scored on "
                          f"{'; '.join(sorted({f['cpu'] for f in first}))}; mean J moved {moved.mean():+.2f} on "
