@@ -698,6 +698,12 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
     bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
     ckpt, log_csv, out = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv"), []
     here = cpu_model()
+
+    def score(policy_path):   # J of a checkpoint on the held-out designs, and the seconds it took
+        t0 = time.time()
+        J = ballu.score(load_policy(policy_path), designs, task, episodes=episodes, workers=workers, cfg=bcfg)
+        return J, time.time() - t0
+
     for m in milestones:
         path = os.path.join(folder, f"result_{m}.json")
         if os.path.exists(path):
@@ -705,11 +711,9 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
                 res = json.load(f)
             if rescore and res.get("cpu") != here:
                 if here not in res.setdefault("rescored", {}):
-                    t0 = time.time()
-                    J = ballu.score(load_policy(os.path.join(folder, f"policy_{m}.pt")), designs, task,
-                                    episodes=episodes, workers=workers, cfg=bcfg)
+                    J, secs = score(os.path.join(folder, f"policy_{m}.pt"))
                     res["rescored"][here] = {"J": J.tolist(), "mean_J": float(J.mean()),
-                                             "rescore_s": time.time() - t0}   # the run's wall time stays its own
+                                             "rescore_s": secs}   # the run's wall time stays its own
                     with open(path, "w") as f:
                         json.dump(res, f)
                 res = {**res, **res["rescored"][here], "cpu": here,
@@ -725,12 +729,10 @@ def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, wo
             env.close()
         train_s = time.time() - t0
         shutil.copy(ckpt, os.path.join(folder, f"policy_{m}.pt"))
-        t0 = time.time()
-        J = ballu.score(load_policy(ckpt), designs, task, episodes=episodes, workers=workers, cfg=bcfg)
+        J, score_s = score(ckpt)
         level = float(np.mean(load_checkpoint(ckpt)["levels"].numpy()))
         res = {"steps": m, "J": J.tolist(), "mean_J": float(J.mean()), "train_level": level,
-               "train_s": train_s, "score_s": time.time() - t0, "resumed": bool(summary.get("resumed")),
-               "cpu": cpu_model()}
+               "train_s": train_s, "score_s": score_s, "resumed": bool(summary.get("resumed")), "cpu": here}
         with open(path, "w") as f:
             json.dump(res, f)
         out.append(res)
@@ -764,7 +766,6 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
     at each milestone; a table (mean and standard error over seeds) in out/<table>.md and the training-level
     curves in out/<table>_curves.png. All settings share designs, budgets, seeds and code. Resumable.
     rescore: results scored on another CPU model are scored again on this one (_protocol_run)."""
-    import ballu
     unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
     if unknown:
         raise ValueError(f"settings {unknown} unknown: one of {sorted(PROTOCOL_SETTINGS)}")
