@@ -291,6 +291,9 @@ def named_start_levels(start, task: str, score_start: int | None = None):
     return (train_start_levels if start == "task" else spread_start_levels)(task, score_start)
 
 
+HARDWARE_DRAG = 0.4   # [facts] the balloon drag of the authors' May 2025 branch, as an option: drag_coef=0.4
+
+
 @dataclass
 class BalluConfig:
     """Everything the simulator needs besides a design. Defaults: [paper] where it says, else [facts]."""
@@ -313,7 +316,9 @@ class BalluConfig:
     balloon_above_neck: float = 0.38
     neck_xz: tuple = (0.0044, 0.015)
     # knee law  [facts]
-    spring_preload: float = math.pi / 4   # tau_spring = -2 k (q + preload) - spring_damping qdot
+    # Spring preload q0 = 72.35 deg as the authors' robot configuration and morphology loader set it [facts];
+    # an earlier reading of their code gave pi/4 (45 deg), kept as the value to pass for the old robot.
+    spring_preload: float = math.radians(72.35)   # tau_spring = -2 k (q + q0) - spring_damping qdot
     spring_damping: float = 0.001
     pd_p: float = 1.0
     pd_d: float = 0.08
@@ -321,11 +326,16 @@ class BalluConfig:
     servo_speed: float = 7.48             # rad/s, 60 deg / 0.14 s: clips the D term's knee velocity [facts]
     # Hardware-like servo [ours, option]: the horn slews at <= servo_speed, so the knee target moves at
     # <= 4.16 rad/s. Off by default: the paper's simulation sets the knee target at once every control step
-    # [facts]. With the slew on, the best open-loop toe clearance falls from 0.21-0.49 m to 0.05-0.23 m
-    # (issue 14; `python ballu.py --capability`), closer to the real robot (24 cm / 8 cm), far from the paper's sim.
+    # [facts]. With the slew on, open-loop toe clearances fall several-fold (docs/capability), closer to the
+    # real robot (24 cm / 8 cm), far from the paper's simulation.
     servo_slew: bool = False
-    # balloon  [facts]
-    drag_coef: float = 0.4                # F_d = -sign(v) 0.4 v^2 per world axis
+    # Passive hips and neck: joint damping 0.001 N m s/rad as in the authors' robot [facts], applied as an
+    # explicit torque -c qdot (URDF joint damping on these tiny inertias blows PyBullet up [facts]).
+    passive_damping: float = 0.001
+    # balloon  [facts]: no drag in the authors' simulation as they run it now (drag 0 since June 2025).
+    # HARDWARE_DRAG (0.4: F_d = -sign(v) 0.4 v^2 per world axis, their May 2025 branch) is the option that caps
+    # how high a high-gcr robot flies, closer to the hardware's 24 cm (docs/capability).
+    drag_coef: float = 0.0
     # QUIRK: their code adds a torque r x F, r = 0.38 m from the neck along the balloon's axis (rotating with
     # it), so lift acts as if 0.76 m above the neck: an extra uprighting torque when the balloon tilts.
     quirk_buoyancy_torque: bool = False
@@ -334,10 +344,14 @@ class BalluConfig:
     start_hip_deg: float = 1.0
     start_knee_deg: float = 27.35
     start_z: float = 1.2
-    # friction  [facts]; robot links get 1.0 so PyBullet's product rule gives the surface's value
-    friction_ground: float = 0.5
+    # friction  [facts]: PhysX combines two materials by the mode of higher priority. Their ground uses
+    # 'multiply' (0.5 x the robot's default 0.5 = 0.25); the box keeps the default material (0.5); the ramp's
+    # material 0.8 meets the robot's 0.5 under the default 'average' (0.65). PyBullet multiplies the two bodies'
+    # lateral frictions, so the robot gets 1.0 and each surface the product.
+    friction_robot: float = 1.0
+    friction_ground: float = 0.25
     friction_obstacle: float = 0.5
-    friction_ramp: float = 0.8
+    friction_ramp: float = 0.65
     # rewards  [paper] eq. 4 [eq:reward_obs] weights; `reward_form` chooses the paper's terms or the authors' code's
     w_nav: float = 5.0
     w_vel: float = 3.0
@@ -346,37 +360,40 @@ class BalluConfig:
     reward_form: str = "paper"            # "paper": -||g-s||^2 and v_x; "code": max(0,1-0.33 d), capped v_x
     # [ours] per-step reward x control dt, as stock Isaac Lab's reward manager does. The authors' fork divides
     # the sum by dt again (its per-step reward is unscaled): that is reward_dt_scale=False [facts]. Kept
-    # because every PPO setting here was tuned at this scale; issue 16 measures the reward scale as a lever.
+    # because every PPO setting here was tuned at this scale (docs/ppo_protocol screens the reward scale).
     reward_dt_scale: bool = True
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    # [ours] lanes per PyBullet world (client), all at the same spot, for training. Bullet's broadphase pairs
-    # every overlapping bounding box before the collision filter drops the pair, so stacked lanes cost ~B^2;
-    # each world costs a fixed overhead per step. 16 lanes on one core, robot-physics-steps/s inside
-    # stepSimulation (`python ballu.py --bench`, issue 15): 1 world of 16: 5.0k; 2 x 8: 7.0k; 4 x 4: 8.3k;
-    # 8 x 2: 9.0k; 16 x 1: 8.0k (2 and 4 are within the VM's noise).
-    # Not speed only: once robots touch their boxes a lane's trajectory can depend on its world-mates (the
-    # solver's contact order), so `score` gives each design a world of its own; training only needs a fixed
-    # seed and worker count to repeat itself.
-    lanes_per_world: int = 4
+    # [ours] lanes per PyBullet world (client), all at the same spot. One lane per world: each world picks its
+    # own substeps (below), so a lane's trajectory never depends on its world-mates, in training as in `score`.
+    # Bullet's broadphase pairs every overlapping bounding box, so stacked lanes cost ~B^2, while each world
+    # costs a fixed overhead per step: 16 lanes on one core, 16 x 1 ran within the VM's noise of 4 x 4
+    # (`python ballu.py --bench` prints the sweep).
+    lanes_per_world: int = 1
     # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
     terrain_width: float = 10.0
     solver_iterations: int = 10           # [ours] PyBullet contact solver iterations (measured stable)
     # Stability with the instant knee target [ours], measured by `python ballu.py --audit 200` (random
-    # open-loop bang-bang actions on random D3 designs): with the facts' bare robot 45 % of episodes blew up.
+    # open-loop bang-bang actions on random D3 designs; docs/capability): with the facts' bare robot 45 % of
+    # episodes blew up.
     # - pelvis_inertia: the pelvis is a 2 g rod spinning freely about the hip axis (passive neck and hips),
     #   pitch inertia 2.9e-8 kg m^2; it whirled at PyBullet's 100 rad/s joint-speed cap and exploded. A floor
     #   of 1e-4 on its three axes (a free axle; the legs' inertia about the hips is 8e-5..5e-4 each) ends that.
     #   The limbs keep their true inertia.
     # - substeps: Bullet activates a joint-limit constraint only once the joint is already past the limit,
     #   so a knee slammed at 10-30 rad/s overshoots by v dt (up to 0.17 rad at 200 Hz). PyBullet substeps
-    #   (knee torques and balloon forces held over the 5 ms step) shrink dt: 8 substeps keep every joint
-    #   within 0.05 rad of its limits. Costs ~5x the physics time of one substep. Tried without effect on
-    #   the overshoot: erp 0-0.9, 50 solver iterations, the PGS and Dantzig MLCP solvers.
+    #   (knee torques and balloon forces held over the 5 ms step) shrink dt. Adaptive: `substeps` (4) in a
+    #   physics step where every joint is slow and clear of its limits, `substeps_fine` (8) where some joint
+    #   moves faster than `fine_speed` or would cross a limit within the step. It passes the audit as fixed 8
+    #   substeps do, at ~1.7x their env rate; plain 4 overshoots (docs/capability). substeps_fine = substeps
+    #   gives a fixed count. Tried without effect on the overshoot: erp 0-0.9, 50 solver iterations, the PGS
+    #   and Dantzig MLCP solvers.
     pelvis_inertia: float = 1e-4
-    substeps: int = 8
+    substeps: int = 4
+    substeps_fine: int = 8
+    fine_speed: float = 15.0              # rad/s
 
     @property
     def dt(self) -> float:
@@ -395,6 +412,7 @@ NECK, HIP_L, KNEE_L, HIP_R, KNEE_R = 0, 1, 2, 3, 4
 BALLOON, FEMUR_L, TIBIA_L, FEMUR_R, TIBIA_R = 0, 1, 2, 3, 4
 KNEES = [KNEE_L, KNEE_R]
 JOINTS = [NECK, HIP_L, HIP_R, KNEE_L, KNEE_R]    # observation order
+JOINT_LIMITS = np.array([[-math.pi / 2, math.pi / 2]] * 3 + [[0.0, math.radians(100)]] * 2)   # JOINTS order [facts]
 TIBIAE = [TIBIA_L, TIBIA_R]
 
 
@@ -495,7 +513,7 @@ def servo_target(action):
 def knee_torque(q: float, qdot: float, q_star: float, spcf: float, cfg: BalluConfig = BalluConfig()) -> float:
     """Knee torque of two springs (toward a straight leg) plus a tendon that can only pull. [facts]
 
-    tau_spring = -2 k (q + pi/4) - 0.001 qdot;  tau_pd = max(0, 1.0 (q* - q) + 0.08 clip(-qdot, -7.48, 7.48));
+    tau_spring = -2 k (q + q0) - 0.001 qdot (q0 = 72.35 deg);  tau_pd = max(0, 1.0 (q* - q) + 0.08 clip(-qdot, -7.48, 7.48));
     tau = clip(tau_spring + tau_pd, -0.0848, 0.0848).  The D term sees the knee velocity clipped to the
     servo's speed [facts]. Plain floats: it runs per knee per physics step.
     """
@@ -506,7 +524,8 @@ def knee_torque(q: float, qdot: float, q_star: float, spcf: float, cfg: BalluCon
 
 
 def balloon_force(gcr: float, mass: float, vel, cfg: BalluConfig = BalluConfig()) -> list:
-    """Buoyancy gcr*M*g straight up plus drag -sign(v) 0.4 v^2 per world axis, at the balloon centre. [facts]"""
+    """Buoyancy gcr*M*g straight up plus drag -sign(v) c v^2 per world axis (c = cfg.drag_coef: 0 by default,
+    HARDWARE_DRAG as an option), at the balloon centre. [facts]"""
     c = cfg.drag_coef
     vx, vy, vz = vel
     return [-c * vx * abs(vx), -c * vy * abs(vy), gcr * mass * cfg.gravity - c * vz * abs(vz)]
@@ -604,6 +623,23 @@ OBS_NAMES = (["vx", "vy", "vz", "wx", "wy", "wz"] + [f"q_{j}" for j in ("neck", 
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
 
 
+def bullet_substeps(n: int) -> int:
+    """PyBullet's numSubSteps for n substeps per physics step: 0 for one (Bullet's plain step, without its
+    fixed-step accumulator)."""
+    return n if n > 1 else 0
+
+
+def needs_fine_substeps(joint_states, dt: float, speed: float) -> bool:
+    """Adaptive substeps [ours]: True if some joint (JOINTS order, PyBullet joint states) moves faster than
+    `speed` rad/s or would cross a limit within dt at its present speed. Bullet activates a limit only once the
+    joint is past it, so such a step needs short substeps to keep the overshoot small (BalluConfig.substeps)."""
+    for (lo, hi), st in zip(JOINT_LIMITS.tolist(), joint_states):
+        q, qd = st[0], st[1]
+        if qd > speed or qd < -speed or not lo <= q + qd * dt <= hi:
+            return True
+    return False
+
+
 class _World:
     """One PyBullet world (a DIRECT client): ground plane, shared terrain shapes, and up to
     `cfg.lanes_per_world` lanes stacked at the same spot, each with its own collision-filter bit."""
@@ -613,9 +649,10 @@ class _World:
             self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         p, self.cid, self.lanes = self.p, self.p._client, []
         p.setGravity(0, 0, -cfg.gravity)
-        p.setPhysicsEngineParameter(fixedTimeStep=cfg.dt, numSubSteps=cfg.substeps if cfg.substeps > 1 else 0,
+        p.setPhysicsEngineParameter(fixedTimeStep=cfg.dt, numSubSteps=bullet_substeps(cfg.substeps),
                                     numSolverIterations=cfg.solver_iterations,
                                     deterministicOverlappingPairs=1)
+        self.substeps = cfg.substeps          # the substeps stepSimulation takes now (see _physics_step)
         self.plane = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE))
         p.changeDynamics(self.plane, -1, lateralFriction=cfg.friction_ground)
         p.setCollisionFilterGroupMask(self.plane, -1, 1, 0x3FFFFFFF)
@@ -623,6 +660,23 @@ class _World:
         self.box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half)
         self.box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.45, 0.3, 1])
         self.ramp_shapes = {}
+
+
+def check_config(cfg: BalluConfig):
+    """A clear error for settings the simulator cannot run (names the field and its allowed range)."""
+    if not 1 <= cfg.lanes_per_world <= MAX_LANES_PER_WORLD:
+        raise ValueError(f"lanes_per_world={cfg.lanes_per_world!r} must lie in [1, {MAX_LANES_PER_WORLD}]")
+    for name in ("substeps", "substeps_fine"):
+        v = getattr(cfg, name)
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not 1 <= v <= 64:
+            raise ValueError(f"{name}={v!r} must be an integer in [1, 64]")
+    if cfg.substeps_fine < cfg.substeps:
+        raise ValueError(f"substeps_fine={cfg.substeps_fine} must be >= substeps={cfg.substeps}")
+    for name in ("drag_coef", "passive_damping", "fine_speed"):
+        v = getattr(cfg, name)
+        if not (isinstance(v, (int, float)) and 0 <= v < math.inf):
+            raise ValueError(f"{name}={v!r} must be a finite number >= 0")
+    task_geometry(cfg.task)
 
 
 class BalluEnv:
@@ -644,9 +698,7 @@ class BalluEnv:
                  curriculum: bool = True, design_sampler=None):
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs={num_envs!r} must be an integer >= 1")
-        if not 1 <= cfg.lanes_per_world <= MAX_LANES_PER_WORLD:
-            raise ValueError(f"lanes_per_world={cfg.lanes_per_world!r} must lie in [1, {MAX_LANES_PER_WORLD}]")
-        task_geometry(cfg.task)
+        check_config(cfg)
         self.cfg, self.num_envs, self.curriculum = cfg, int(num_envs), curriculum
         self.design_sampler = design_sampler
         self.lane_ids = np.arange(num_envs) if lane_ids is None else np.asarray(lane_ids)
@@ -677,6 +729,7 @@ class BalluEnv:
         self.rngs = [np.random.default_rng(0) for _ in range(n)]
         self._ready = False
         self.sim_seconds = 0.0
+        self.world_steps, self.fine_steps = 0, 0   # world physics steps, and those with fine substeps
         self._stepping = self.worlds     # worlds that stepSimulation steps (see pause)
 
     def pause(self, lanes):
@@ -735,7 +788,7 @@ class BalluEnv:
                 f.write(robot_urdf(design, cfg))
             b = p.loadURDF(path, [0, 0, cfg.start_z], flags=p.URDF_USE_INERTIA_FROM_FILE)
             for link in range(-1, 5):
-                p.changeDynamics(b, link, lateralFriction=1.0, linearDamping=0.0, angularDamping=0.0,
+                p.changeDynamics(b, link, lateralFriction=cfg.friction_robot, linearDamping=0.0, angularDamping=0.0,
                                  jointDamping=0.0)
                 p.setCollisionFilterGroupMask(b, link, self._lane_bit(i), 1 | self._lane_bit(i))
             p.setJointMotorControlArray(b, JOINTS, p.VELOCITY_CONTROL, forces=[0.0] * 5)
@@ -787,41 +840,55 @@ class BalluEnv:
 
     # -- the hot loop ------------------------------------------------------------------------------------
     def _physics_step(self):
-        """One 200 Hz step: per robot, read knees and balloon, apply knee torques and balloon forces; step.
+        """One 200 Hz step: per robot, read joints and balloon, apply joint torques and balloon forces; step.
 
         Knee target: the servo angle x 100/180, set at once from the last action [facts], or moved at <= the
-        servo speed if `servo_slew` (hardware-like option). Two PyBullet calls per robot to read and two to
-        write, on the module with the client id (the BulletClient wrapper costs more per call than the calls
-        themselves); the per-robot arithmetic is on plain floats, which beats numpy dispatch at these sizes.
+        servo speed if `servo_slew` (hardware-like option). Hips and neck get their passive damping. Each world
+        (one lane by default) steps with `substeps_fine` substeps if some joint is fast or near a limit, else
+        `substeps` (see BalluConfig). Two PyBullet calls per robot to read and two to write, on the module with
+        the client id (the BulletClient wrapper costs more per call than the calls themselves); the per-robot
+        arithmetic is on plain floats, which beats numpy dispatch at these sizes.
         """
         cfg = self.cfg
         get_joints, get_link, apply, control = (pybullet.getJointStates, pybullet.getLinkState,
                                                 pybullet.applyExternalForce, pybullet.setJointMotorControlArray)
         world_frame, torque_mode = pybullet.WORLD_FRAME, pybullet.TORQUE_CONTROL
         slew = cfg.servo_speed * cfg.dt if cfg.servo_slew else math.inf
-        ratio = 100.0 / 180.0
+        ratio, c = 100.0 / 180.0, cfg.passive_damping
+        adaptive = cfg.substeps_fine != cfg.substeps
         for world in self._stepping:
-            cid = world.cid
+            cid, fine = world.cid, False
             for i in world.lanes:
                 b = self.bodies[i]
-                (q_l, qd_l, _, _), (q_r, qd_r, _, _) = get_joints(b, KNEES, physicsClientId=cid)
+                js = get_joints(b, JOINTS, physicsClientId=cid)
                 ls = get_link(b, BALLOON, 1, physicsClientId=cid)
                 servo, goal = self._servo[i], self._servo_goal[i]
                 servo[0] += min(slew, max(-slew, goal[0] - servo[0]))
                 servo[1] += min(slew, max(-slew, goal[1] - servo[1]))
                 k = self._spcf[i]
-                tau = [knee_torque(q_l, qd_l, servo[0] * ratio, k, cfg), knee_torque(q_r, qd_r, servo[1] * ratio, k, cfg)]
+                tau = [-c * js[0][1], -c * js[1][1], -c * js[2][1],
+                       knee_torque(js[3][0], js[3][1], servo[0] * ratio, k, cfg),
+                       knee_torque(js[4][0], js[4][1], servo[1] * ratio, k, cfg)]
                 force = balloon_force(self._gcr[i], self._mass[i], ls[6], cfg)
                 apply(b, BALLOON, force, ls[0], world_frame, physicsClientId=cid)
-                control(b, KNEES, torque_mode, forces=tau, physicsClientId=cid)
+                control(b, JOINTS, torque_mode, forces=tau, physicsClientId=cid)
                 if cfg.quirk_buoyancy_torque:
                     pybullet.applyExternalTorque(b, BALLOON, quirk_torque(ls[1], force, cfg), world_frame,
                                                  physicsClientId=cid)
                 if self.monitor is not None:
                     self._applied[i] = (tau, force)
+                if adaptive and not fine:
+                    fine = needs_fine_substeps(js, cfg.dt, cfg.fine_speed)
+            if adaptive:
+                n = cfg.substeps_fine if fine else cfg.substeps
+                if n != world.substeps:
+                    pybullet.setPhysicsEngineParameter(numSubSteps=bullet_substeps(n), physicsClientId=cid)
+                    world.substeps = n
+                self.fine_steps += fine
             t0 = time.perf_counter()
             pybullet.stepSimulation(physicsClientId=cid)
             self.sim_seconds += time.perf_counter() - t0   # for the benchmark's physics-only reference
+            self.world_steps += 1
         if self.monitor is not None:
             self.monitor(self)
 
@@ -1080,7 +1147,7 @@ class VecBallu:
             raise ValueError(f"workers={workers!r} must be an integer >= 1")
         if not isinstance(num_envs, (int, np.integer)) or num_envs < workers:
             raise ValueError(f"num_envs={num_envs!r} must be an integer >= workers={workers}")
-        task_geometry(cfg.task)
+        check_config(cfg)
         self.num_envs, self.cfg = int(num_envs), cfg
         self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
         self.splits = np.array_split(np.arange(num_envs), workers)
@@ -1366,9 +1433,6 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
 # ----------------------------------------------------------------------------------------------------------
 # 9. The physics audit and what the robot can do, open loop
 # ----------------------------------------------------------------------------------------------------------
-JOINT_LIMITS = np.array([[-math.pi / 2, math.pi / 2]] * 3 + [[0.0, math.radians(100)]] * 2)   # JOINTS order
-
-
 def random_actions(rng, n: int, steps: int, hold=(1, 10)) -> np.ndarray:
     """Open-loop test actions (n, steps, 2): each leg holds a value for 1-10 control steps; half of the values
     are bang-bang (0 or 1, the full range at once), half uniform in [0, 1]. [ours]"""
@@ -1388,7 +1452,8 @@ class EnergyAudit:
 
     balance = (E_now - E_start) - W, with E the mechanical energy (kinetic + gravitational potential of every
     link, balloon included) and W the work done on the robot by the knee torques (tau * dq) and the balloon
-    force (buoyancy + drag, F . dx of its centre). Contacts, joint limits and friction may only take energy
+    force (buoyancy + drag, F . dx of its centre); tau holds every joint's applied torque (JOINTS order: the
+    passive joints' damping and the knees'). Contacts, joint limits and friction may only take energy
     away, so the balance must never rise; `rise` is its largest rise above its running minimum (J).
     Lanes flagged in `alive` = False (blown up and reset) are no longer audited.
     """
@@ -1420,7 +1485,7 @@ class EnergyAudit:
             e, jq, xb = self._state(i)
             e0, jq0, xb0 = self.prev[i]
             tau, force = env._applied[i]
-            work = tau[0] * (jq[3] - jq0[3]) + tau[1] * (jq[4] - jq0[4]) + float(np.dot(force, xb - xb0))
+            work = float(np.dot(tau, jq - jq0)) + float(np.dot(force, xb - xb0))
             self.balance[i] += (e - e0) - work
             self.work[i] += abs(work)
             self.low[i] = min(self.low[i], self.balance[i])
@@ -1492,11 +1557,18 @@ def stability_audit(episodes: int = 200, steps: int = 400, cfg: BalluConfig | No
     return out
 
 
-AUDIT_CONFIGS = {   # name -> BalluConfig changes; the last two are the simulator before issue 14
-    "default: instant target, pelvis floor, 8 substeps": {},
+# The robot before the simulator matched the authors' current one: balloon drag, 45 deg spring preload, every
+# surface's friction against a robot of 1.0 as the materials alone, no passive damping, fixed 8 substeps in worlds
+# of 4 lanes. Kept to measure against (audit, bench, docs/capability), not as an option to train with.
+PREVIOUS_ROBOT = dict(drag_coef=HARDWARE_DRAG, spring_preload=math.pi / 4, friction_ground=0.5, friction_ramp=0.8,
+                      passive_damping=0.0, substeps=8, substeps_fine=8, lanes_per_world=4)
+AUDIT_CONFIGS = {   # name -> BalluConfig changes
+    "default: no drag, adaptive 4/8 substeps": {},
+    "option: balloon drag 0.4 v^2": {"drag_coef": HARDWARE_DRAG},
+    "fixed 8 substeps": {"substeps": 8, "substeps_fine": 8},
+    "fixed 4 substeps": {"substeps_fine": 4},
     "option: slewed servo (hardware-like)": {"servo_slew": True},
-    "before: slewed servo, bare pelvis, 1 substep": {"servo_slew": True, "pelvis_inertia": 0.0, "substeps": 1},
-    "bare: instant target, bare pelvis, 1 substep": {"pelvis_inertia": 0.0, "substeps": 1},
+    "previous robot (drag, 45 deg preload, fixed 8 substeps)": PREVIOUS_ROBOT,
 }
 
 
@@ -1616,21 +1688,31 @@ def capability(design, cfg: BalluConfig | None = None, seed: int = 0, pop: int =
             "ramp_deg": float(level_score("ramp", max(ramp_level, 0))) if ramp_level >= 0 else 0.0}
 
 
-def capability_table(workers: int = 2, seed: int = 0, progress=print) -> str:
-    """`python ballu.py --capability`: the four designs, with and without the servo slew, beside the paper."""
-    rows = ["| design | actuation | toe clearance | obstacle cleared | ramp climbed |", "|---|---|---|---|---|"]
+CAPABILITY_CONFIGS = {"default: no drag": {}, "option: balloon drag 0.4 v^2": {"drag_coef": HARDWARE_DRAG}}
+
+
+def capability_table(designs=("baseline", "paper optimum (gcr 0.88, spcf 0.008)"), seeds=(0, 1, 2),
+                     workers: int = 2, progress=print) -> str:
+    """`python ballu.py --capability`: each design under each CAPABILITY_CONFIGS simulator, the median over
+    search seeds (each seed's value in brackets), beside the paper."""
+    rows = ["| design | simulator | toe clearance, m | obstacle cleared, cm | ramp climbed, deg |",
+            "|---|---|---|---|---|"]
     t0 = time.time()
-    for name, d in CAPABILITY_DESIGNS.items():
-        for slew in (False, True):
-            c = capability(np.array(d), replace(BalluConfig(), servo_slew=slew), seed=seed, workers=workers)
-            act = "slewed servo (option)" if slew else "instant target (default)"
-            rows.append(f"| {name} | {act} | {c['clearance_m']:.3f} m | level {c['obstacle_level']} "
-                        f"({c['obstacle_cm']:.1f} cm) | level {c['ramp_level']} ({c['ramp_deg']:.1f} deg) |")
+    for name in designs:
+        for sim, change in CAPABILITY_CONFIGS.items():
+            cs = [capability(np.array(CAPABILITY_DESIGNS[name]), replace(BalluConfig(), **change), seed=s,
+                             workers=workers) for s in seeds]
+            cells = []
+            for key, fmt in (("clearance_m", ".2f"), ("obstacle_cm", ".0f"), ("ramp_deg", ".1f")):
+                v = [c[key] for c in cs]
+                cells.append(f"{np.median(v):{fmt}} ({', '.join(f'{x:{fmt}}' for x in v)})")
+            rows.append(f"| {name} | {sim} | " + " | ".join(cells) + " |")
             progress(f"capability: {rows[-1]}  [{time.time() - t0:.0f} s]")
-    rows.append("| paper, its simulation | | | baseline 14.2 cm; optimised designs 45-54 cm | baseline 25.1 deg; "
-                "optimised 36 deg |")
-    rows.append("| paper, hardware | | | 8 cm (baseline); 24 cm (gcr 0.86, spcf 0.008) | |")
-    return "\n".join(rows)
+    rows.append("| paper, its simulation | | | baseline 14.2 (mean J); optimised designs 45-54 | baseline 25.1 "
+                "(mean J); optimised 36 |")
+    rows.append("| paper, hardware | | | 8 (baseline); 24 (gcr 0.86, spcf 0.008) | |")
+    return (f"Open-loop search (no learning), median over search seeds {list(seeds)} with each seed's value in "
+            f"brackets; lower bounds on what a policy can do.\n\n" + "\n".join(rows))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1714,21 +1796,25 @@ def _bench_score(designs: int, workers: int, cfg: BalluConfig):
 
 
 def bench(lanes: int = 16, workers: int = 2, control_steps: int = 200, repeats: int = 2):
-    """Simulator throughput next to its own physics-only rate, measured in the same run (issue 15).
+    """Simulator throughput next to references measured in the same run.
 
     Physics only: the time inside stepSimulation alone while the same robots move under random actions. Env:
     all per-step work (forces, torques, state reads, reward, observation). Rates are robot-physics-steps/s
-    at 200 Hz. Each configuration is measured `repeats` times in alternation (this machine drifts +-20 %
-    within minutes) and the mean is printed. Pool start-up is paid before the scoring rows (the pool is
-    long-lived, so that is how `run_all.py` sees it).
+    at 200 Hz. The reference is PREVIOUS_ROBOT (fixed 8 substeps in worlds of 4 lanes), stepped the same way.
+    Each configuration is measured `repeats` times in alternation (this machine drifts +-20 % within minutes)
+    and the mean is printed. Pool start-up is paid before the scoring rows (the pool is long-lived, so that is
+    how `run_all.py` sees it).
     """
     base = BalluConfig()
+    before = replace(base, **PREVIOUS_ROBOT)
     sweep = [b for b in (1, 2, 4, 8, 16) if b <= lanes]
     rows = {}
     for _ in range(repeats):
         for b in sweep:
             rows.setdefault(("layout", b), []).append(_bench_env(lanes, 1, control_steps, replace(base, lanes_per_world=b)))
+        rows.setdefault(("before", 1), []).append(_bench_env(lanes, 1, control_steps, before))
         rows.setdefault(("env", workers), []).append(_bench_env(lanes, workers, control_steps, base))
+        rows.setdefault(("before", workers), []).append(_bench_env(lanes, workers, control_steps, before))
     short = replace(base, episode_steps=100)
     _bench_score(workers, workers, short)   # start the shared pool
     for _ in range(repeats):
@@ -1742,14 +1828,21 @@ def bench(lanes: int = 16, workers: int = 2, control_steps: int = 200, repeats: 
         print(f"  {lanes // b:2d} world(s) of {b:2d} lane(s)            {raw:10,.0f}/s {env:14,.0f}/s{tag}")
     raw1, env1 = m[("layout", base.lanes_per_world)]
     raw2, env2 = m[("env", workers)]
+    rawb1, envb1 = m[("before", 1)]
+    rawb2, envb2 = m[("before", workers)]
     s1, s2 = m[("score", 1)][0], m[("score", workers)][0]
     print(f"1 core, {lanes} lanes:               physics only {raw1:8,.0f}/s   env {env1:8,.0f}/s")
+    print(f"  previous robot (8 substeps):   physics only {rawb1:8,.0f}/s   env {envb1:8,.0f}/s   "
+          f"-> default {raw1 / rawb1:.2f}x physics, {env1 / envb1:.2f}x env")
     print(f"{workers} workers, {lanes} lanes each:     physics only {raw2:8,.0f}/s   env {env2:8,.0f}/s")
+    print(f"  previous robot (8 substeps):   physics only {rawb2:8,.0f}/s   env {envb2:8,.0f}/s   "
+          f"-> default {raw2 / rawb2:.2f}x physics, {env2 / envb2:.2f}x env")
     print(f"score, {lanes * workers} designs:          1 core {s1:8,.0f}/s   {workers} workers {s2:8,.0f}/s")
     print(f"env/physics ratio {env1 / raw1:.2f}   (1 core, all per-step work / stepSimulation alone)")
     print(f"{workers} workers vs 1 core {env2 / env1:.2f}x   (env: each worker steps its own lanes, as ppo.train)")
     print(f"{workers} workers vs 1 core {s2 / s1:.2f}x   (score: each worker plays its designs)")
-    print(f"({repeats} alternating repeats each; robot-physics-steps per second at 200 Hz)")
+    print(f"({repeats} alternating repeats each; robot-physics-steps per second at 200 Hz; default: adaptive "
+          f"{base.substeps}/{base.substeps_fine} substeps, previous robot: ballu.PREVIOUS_ROBOT)")
     return m
 
 
@@ -1783,7 +1876,7 @@ def _main(argv=None):
         print("wrote", motion_strip(args.strip, PumpGait(args.period, args.mode), args.task, args.level,
                                     np.array(args.design)))
     if args.capability:
-        print(capability_table(args.workers))
+        print(capability_table(workers=args.workers))
     if args.audit:
         print(audit_table(args.audit, args.workers))
     if not (args.bench or args.strip or args.capability or args.audit):

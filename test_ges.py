@@ -79,7 +79,7 @@ def test_buoyancy_free_fall_accelerates_at_one_minus_gcr_g(gcr):
 def test_drag_gives_the_terminal_velocity():
     """Falling far from the ground, 0.4 v^2 = (1 - gcr) M g sets the terminal speed (about 1.16 m/s)."""
     gcr = 0.72
-    cfg = replace(BalluConfig(), start_z=30.0)
+    cfg = replace(BalluConfig(), start_z=30.0, drag_coef=ballu.HARDWARE_DRAG)   # the drag option
     env = BalluEnv(1, cfg)
     env.reset(seed=0, options={"designs": [0.45, 0.45, gcr, 0.01]})
     mass = ballu.mass_properties([0.45, 0.45, gcr, 0.01])["total"]
@@ -92,6 +92,8 @@ def test_drag_gives_the_terminal_velocity():
     env.close()
     assert v == pytest.approx(math.sqrt((1 - gcr) * mass * cfg.gravity / cfg.drag_coef), rel=0.03)
     f = ballu.balloon_force(0.8, 0.2, (1.0, -2.0, -0.5))
+    assert f == pytest.approx([0.0, 0.0, 0.8 * 0.2 * 9.81])                  # no drag by default [facts]
+    f = ballu.balloon_force(0.8, 0.2, (1.0, -2.0, -0.5), cfg)
     assert f == pytest.approx([-0.4, 1.6, 0.8 * 0.2 * 9.81 + 0.1])
 
 
@@ -121,8 +123,9 @@ def test_larger_gcr_settles_higher_on_bent_knees():
 
 
 def reference_knee_torque(q, qd, q_star, k):
-    """Independent transcription of ballu_facts.md's knee law (D term on the velocity clipped to +-7.48)."""
-    spring = -2 * k * (q + math.pi / 4) - 0.001 * qd
+    """Independent transcription of ballu_facts.md's knee law (D term on the velocity clipped to +-7.48;
+    spring preload 72.35 deg)."""
+    spring = -2 * k * (q + 72.35 * math.pi / 180) - 0.001 * qd
     pd = max(0.0, 1.0 * (q_star - q) + 0.08 * float(np.clip(-qd, -7.48, 7.48)))
     return float(np.clip(spring + pd, -0.0848, 0.0848))
 
@@ -137,7 +140,7 @@ def test_knee_torque_matches_the_facts_formula():
                             rng.uniform(0.001, 0.1, 500)):
         tau = ballu.knee_torque(q, qd, qs, k)
         assert abs(tau) <= 0.0848 + 1e-12                                       # the clip holds
-        spring = -2 * k * (q + math.pi / 4) - 0.001 * qd
+        spring = -2 * k * (q + 72.35 * math.pi / 180) - 0.001 * qd
         assert tau >= min(0.0848, max(-0.0848, spring)) - 1e-12                 # the tendon never pushes
         if qs - q - 0.08 * np.clip(qd, -7.48, 7.48) <= 0:
             assert tau == pytest.approx(min(0.0848, max(-0.0848, spring)))    # slack tendon: springs only
@@ -429,6 +432,44 @@ def test_random_open_loop_rollouts_are_stable_and_hold_joint_limits():
     out = ballu.stability_audit(episodes=16, steps=160, seed=3)
     assert not out["blowup"].any()
     assert out["limit_excess"].max() <= 0.05, out["limit_excess"].max()
+
+
+def test_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch):
+    """needs_fine_substeps flags a joint faster than fine_speed or about to cross a limit within the step; the
+    world then steps with substeps_fine. Forcing the rule on (off) gives fixed 8 (4) substeps' trajectory bit
+    for bit, so the switch reaches Bullet; bang-bang knees trigger it in some steps, not in all."""
+    dt, knee_max = BalluConfig().dt, math.radians(100)
+    rest = [(0.0, 0.0)] * 3 + [(0.5, 0.0)] * 2                  # JOINTS order: neck, hips, knees
+    assert not ballu.needs_fine_substeps(rest, dt, 15.0)
+    assert ballu.needs_fine_substeps(rest[:3] + [(0.5, -15.5), (0.5, 0.0)], dt, 15.0)   # a fast knee
+    assert ballu.needs_fine_substeps(rest[:4] + [(knee_max - 0.02, 5.0)], dt, 15.0)      # 0.025 rad past 100 deg
+    assert not ballu.needs_fine_substeps(rest[:4] + [(knee_max - 0.03, 5.0)], dt, 15.0)  # stops 0.005 short
+    assert ballu.needs_fine_substeps([(0.0, 0.0), (-math.pi / 2 + 0.01, -3.0)] + rest[2:], dt, 15.0)   # a hip
+    acts = np.random.default_rng(5).integers(0, 2, (60, 2, 2)).astype(float)
+    opts = {"designs": [[0.45, 0.45, 0.85, 0.05], [0.3, 0.3, 0.75, 0.002]], "levels": 10}
+
+    def run(cfg):
+        env = BalluEnv(2, cfg)
+        out = rollout(env, acts, options=opts)
+        env.close()
+        return out, env.fine_steps / env.world_steps
+
+    default, share = run(BalluConfig())
+    assert 0 < share < 0.5, share
+    monkeypatch.setattr(ballu, "needs_fine_substeps", lambda *a: True)
+    np.testing.assert_array_equal(run(BalluConfig())[0], run(replace(BalluConfig(), substeps=8))[0])
+    monkeypatch.setattr(ballu, "needs_fine_substeps", lambda *a: False)
+    np.testing.assert_array_equal(run(BalluConfig())[0], run(replace(BalluConfig(), substeps_fine=4))[0])
+    assert not np.array_equal(run(BalluConfig())[0], default)
+
+
+@pytest.mark.parametrize("change, match", [({"substeps": 0}, r"substeps=0 must be an integer in \[1, 64\]"),
+                                           ({"substeps_fine": 2}, "substeps_fine=2 must be >= substeps=4"),
+                                           ({"drag_coef": -0.1}, "drag_coef=-0.1 must be a finite number >= 0"),
+                                           ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite")])
+def test_bad_simulator_settings_name_the_field(change, match):
+    with pytest.raises(ValueError, match=match):
+        BalluEnv(1, replace(BalluConfig(), **change))
 
 
 ENERGY_TOL = 0.015   # J over an episode; see test_energy_audit_finds_no_energy_created
@@ -815,9 +856,9 @@ class HysteresisPump:
 
 def test_score_reuse_replays_known_levels_exactly(monkeypatch):
     """score(reuse=True) plays each level of a design's walk once: J and every episode's final x equal playing
-    every episode, on walks that swing between two levels (the robot hits the box face, then clears it), that
-    sit on the floor level 0, and that climb (ramp: the wedge is rebuilt each level), with fewer physics steps;
-    reuse needs unit level steps."""
+    every episode, on walks that climb, then hold a level (the robot lands on the box and stays there), that sit
+    on the floor level 0, and on the ramp (the wedge is rebuilt each level), with fewer physics steps; reuse needs
+    unit level steps."""
     steps = [0]
     step_simulation = pybullet.stepSimulation
 
@@ -827,7 +868,7 @@ def test_score_reuse_replays_known_levels_exactly(monkeypatch):
 
     monkeypatch.setattr(ballu.pybullet, "stepSimulation", counted)
     designs = np.array([ballu.BASELINE, [0.45, 0.45, 0.81, 0.0505]])
-    for task, start, episodes in (("obstacle", 4, 5), ("ramp", 2, 5)):
+    for task, start, episodes in (("obstacle", 6, 5), ("ramp", 2, 5)):
         out, cost = {}, {}
         for reuse in (False, True):
             steps[0] = 0
@@ -839,8 +880,8 @@ def test_score_reuse_replays_known_levels_exactly(monkeypatch):
         x = out[False][1]
         assert len(set(x[1])) == 1 and x[1, 0] < 0.5, x          # the D2 centre sits on level 0
         assert cost[True] < cost[False], (task, cost)
-        if task == "obstacle":   # the baseline swings: cleared (x > 1), then short of the face (x < 0.5)
-            assert x[0, 0] < 0.5 < 1.0 < x[0, 1] and x[0, 2] == x[0, 0], x
+        if task == "obstacle":   # the baseline clears (x > 1) twice, then holds its level (0.5 < x < 1)
+            assert min(x[0, :2]) > 1.0 and 0.5 < x[0, 2] < 1.0 and x[0, 2] == x[0, 3] == x[0, 4], x
     with pytest.raises(ValueError, match="reuse=True needs unit level steps"):
         ballu.score(HysteresisPump(), designs[:1], "obstacle", level_steps=(2, 1), reuse=True)
 
