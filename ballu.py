@@ -1567,7 +1567,6 @@ AUDIT_CONFIGS = {   # name -> BalluConfig changes
     "option: balloon drag 0.4 v^2": {"drag_coef": HARDWARE_DRAG},
     "fixed 8 substeps": {"substeps": 8, "substeps_fine": 8},
     "fixed 4 substeps": {"substeps_fine": 4},
-    "option: slewed servo (hardware-like)": {"servo_slew": True},
     "previous robot (drag, 45 deg preload, fixed 8 substeps)": PREVIOUS_ROBOT,
 }
 
