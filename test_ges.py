@@ -46,7 +46,7 @@ def robot_com(env, i=0):
     return np.average(xs, axis=0, weights=ms), sum(ms)
 
 
-def test_mass_matches_facts():
+def test_ballu_mass_matches_facts():
     # ballu_facts.md: total mass 0.198 kg (0.480/0.443), 0.185 kg (0.286/0.215); balloon about 0.095 kg
     for lf, lt, m in ((0.480, 0.443, 0.198), (0.286, 0.215, 0.185)):
         assert ballu.mass_properties([lf, lt, 0.8, 0.01])["total"] == pytest.approx(m, abs=0.0015)
@@ -54,7 +54,7 @@ def test_mass_matches_facts():
 
 
 @pytest.mark.parametrize("gcr", [0.72, 0.90])
-def test_buoyancy_free_fall_accelerates_at_one_minus_gcr_g(gcr):
+def test_ballu_buoyancy_free_fall_accelerates_at_one_minus_gcr_g(gcr):
     """Held clear of the ground and released from rest, the centre of mass falls at (1 - gcr) g.
 
     Drag is switched off (it is tested on its own below); a is the quadratic term of a least-squares fit
@@ -76,7 +76,7 @@ def test_buoyancy_free_fall_accelerates_at_one_minus_gcr_g(gcr):
     assert mass == pytest.approx(ballu.mass_properties([0.45, 0.45, gcr, 0.01])["total"], rel=1e-6)
 
 
-def test_drag_gives_the_terminal_velocity():
+def test_ballu_drag_gives_the_terminal_velocity():
     """Falling far from the ground, 0.4 v^2 = (1 - gcr) M g sets the terminal speed (about 1.16 m/s)."""
     gcr = 0.72
     cfg = replace(BalluConfig(), start_z=30.0, drag_coef=ballu.HARDWARE_DRAG)   # the drag option
@@ -108,14 +108,14 @@ def settle(designs, action, seconds=4.0):
     return z
 
 
-def test_standing_height_grows_with_leg_length():
+def test_ballu_standing_height_grows_with_leg_length():
     z = settle([[0.30, 0.30, 0.8, 0.01], [0.40, 0.40, 0.8, 0.01], [0.50, 0.50, 0.8, 0.01]], 0.0)
     # straight legs (zero action): pelvis near l_f + l_t + 0.068; each step adds 0.2 m of leg
     assert np.all(np.diff(z) > 0.15), z
     assert z[0] == pytest.approx(0.6 + 0.068, abs=0.08)
 
 
-def test_larger_gcr_settles_higher_on_bent_knees():
+def test_ballu_larger_gcr_settles_higher_on_bent_knees():
     # With the tendon holding the knees bent (a = 0.5), more net weight bends them further:
     # measured 0.844 m (gcr 0.72) vs 0.890 m (gcr 0.90).
     z = settle([[0.45, 0.45, 0.72, 0.001], [0.45, 0.45, 0.90, 0.001]], 0.5)
@@ -130,7 +130,7 @@ def reference_knee_torque(q, qd, q_star, k):
     return float(np.clip(spring + pd, -0.0848, 0.0848))
 
 
-def test_knee_torque_matches_the_facts_formula():
+def test_ballu_knee_torque_matches_the_facts_formula():
     pts = [(0.0, 0.0, 0.0, 0.002), (0.5, 0.0, 0.6, 0.002), (0.5, 1.0, 0.6, 0.002), (1.2, -2.0, 0.3, 0.05),
            (0.2, 0.0, 1.7, 0.1), (1.7, 0.0, 0.0, 0.001), (0.3, -30.0, 0.9, 0.01), (1.0, 20.0, 1.7, 0.01)]
     for q, qd, qs, k in pts:
@@ -146,7 +146,7 @@ def test_knee_torque_matches_the_facts_formula():
             assert tau == pytest.approx(min(0.0848, max(-0.0848, spring)))    # slack tendon: springs only
 
 
-def test_servo_target_mapping():
+def test_ballu_servo_target_mapping():
     np.testing.assert_allclose(ballu.servo_target([-0.5, 0.25, 1.0, 2.0]), [0, math.pi / 4, math.pi, math.pi])
 
 
@@ -158,7 +158,7 @@ def rollout(env, actions, seed=0, options=None):
     return np.array(out)
 
 
-def test_lanes_do_not_interact():
+def test_ballu_lanes_do_not_interact():
     """Lane 5 of 8 robots with other designs, the same robot alone, and in lane 0 of another world of 3
     follow bit-identical trajectories."""
     rng = np.random.default_rng(1)
@@ -177,7 +177,7 @@ def test_lanes_do_not_interact():
     assert np.abs(np.diff(tb[:, :, 0], axis=1)).max() > 1e-3   # the lanes did move differently
 
 
-def test_same_design_scores_the_same_in_every_lane():
+def test_ballu_same_design_scores_the_same_in_every_lane():
     # Six copies of one design under one gait: identical scores (no lane-dependent rounding).
     s = ballu.score(ballu.PumpGait(16), np.tile(D_MID, (6, 1)), "obstacle", episodes=2)
     assert np.all(s == s[0]), s
@@ -188,7 +188,7 @@ def d2_sampler(rng, n):
     return np.column_stack([np.full((n, 2), 0.45), rng.uniform(0.72, 0.9, n), rng.uniform(0.001, 0.1, n)])
 
 
-def test_same_seed_same_trajectory_and_workers_do_not_matter():
+def test_ballu_same_seed_same_trajectory_and_workers_do_not_matter():
     sampler = d2_sampler
     cfg = replace(BalluConfig(), episode_steps=20)          # several auto-resets with sampled designs
     acts = np.random.default_rng(2).uniform(0, 1, (50, 4, 2))
@@ -208,20 +208,20 @@ def test_same_seed_same_trajectory_and_workers_do_not_matter():
     assert not np.array_equal(runs[0], other)
 
 
-def test_curriculum_rule():
+def test_ballu_curriculum_rule():
     assert list(ballu.curriculum_update("obstacle", [5, 5, 5, 74, 0], [1.01, 0.7, 0.49, 3.0, -1.0])) == [6, 5, 4, 74, 0]
     assert list(ballu.curriculum_update("ramp", [40, 40, 40], [1.71, 1.5, 1.29])) == [41, 40, 39]
     assert ballu.level_score("obstacle", 28) == pytest.approx(28.1)
     assert ballu.level_score("ramp", 40) == pytest.approx(math.degrees(math.atan(0.801 / 1.5)))
 
 
-def test_stand_scores_low_and_curriculum_moves_down():
+def test_ballu_stand_scores_low_and_curriculum_moves_down():
     # `stand` never reaches the obstacle: every episode ends with x < 0.5, 20 levels down from 28.
     s = ballu.score(ballu.stand, [BASELINE, D_MID], "obstacle")
     np.testing.assert_allclose(s, ballu.level_score("obstacle", 8))
 
 
-def test_score_level_steps_of_ones_is_the_unit_step_J_and_steps_move_the_simulator():
+def test_ballu_score_level_steps_of_ones_is_the_unit_step_J_and_steps_move_the_simulator():
     """level_steps=None and an all-ones schedule of length 20 give episodes=20's J and trajectories to the last
     bit; a schedule moves the real env by its steps (1 s episodes: every lane ends short of the box)."""
     cfg = replace(BalluConfig(), episode_steps=20)
@@ -273,7 +273,7 @@ class ThresholdEnv:
 
 
 @pytest.mark.parametrize("task", ballu.TASKS)
-def test_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, task):
+def test_ballu_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, task):
     """run_all.BISECTION (7 episodes) ends within one level of the 20-episode J for every threshold the unit walk
     can reach (start +-19: not range-limited), with or without a stay band at the threshold."""
     start = ballu.SCORE_START_LEVEL[task]
@@ -291,7 +291,7 @@ def test_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, ta
     assert np.abs(np.subtract(short, unit)).max() > 1      # a schedule reaching +-15 cannot follow every threshold
 
 
-def test_score_level_steps_bad_input_raises_clear_errors():
+def test_ballu_score_level_steps_bad_input_raises_clear_errors():
     for bad in ((), (0,), (1, 75), (2.5,), "8421", (True,), [[1]], 3):
         with pytest.raises(ValueError, match=r"level_steps=.* must be None or a non-empty sequence of integers "
                                              r"in \[1, 74\]"):
@@ -300,7 +300,7 @@ def test_score_level_steps_bad_input_raises_clear_errors():
         ballu.score(ballu.stand, BASELINE, episodes=20, level_steps=(4, 2, 1))
 
 
-def test_episode_limits_and_info():
+def test_ballu_episode_limits_and_info():
     cfg = replace(BalluConfig(), episode_steps=5)
     env = BalluEnv(2, cfg)
     env.reset(seed=0, options={"levels": [3, 3]})
@@ -317,7 +317,7 @@ def test_episode_limits_and_info():
     env.close()
 
 
-def test_bad_input_raises_clear_errors():
+def test_ballu_bad_input_raises_clear_errors():
     with pytest.raises(ValueError, match=r"lanes_per_world=0 must lie in \[1, 29\]"):
         BalluEnv(1, replace(BalluConfig(), lanes_per_world=0))
     with pytest.raises(ValueError, match="episodes=0 must be an integer >= 1"):
@@ -349,7 +349,7 @@ def test_bad_input_raises_clear_errors():
         BalluEnv(1, replace(BalluConfig(), task="stairs"))
 
 
-def test_dead_worker_gives_a_clear_error():
+def test_ballu_dead_worker_gives_a_clear_error():
     env = ballu.VecBallu(2, 2)
     env.reset(seed=0)
     env.procs[1].kill()
@@ -359,7 +359,7 @@ def test_dead_worker_gives_a_clear_error():
     env.close()
 
 
-def test_ramp_terrain_and_toe_height():
+def test_ballu_ramp_terrain_and_toe_height():
     # The ramp surface rises linearly; the obstacle top is flat; both are zero off the terrain.
     assert ballu.surface_height("ramp", np.array([0.4, 1.25, 2.0, 2.1]), 40).tolist() == pytest.approx(
         [0, 0.4005, 0.801, 0])
@@ -371,7 +371,7 @@ def test_ramp_terrain_and_toe_height():
 
 
 @pytest.mark.parametrize("task, level, top", [("obstacle", 30, 0.301), ("ramp", 40, 0.801)])
-def test_terrain_spans_the_lane(task, level, top):
+def test_ballu_terrain_spans_the_lane(task, level, top):
     """The terrain reaches 4 m to either side of the lane: no walking around it (a trained policy walked
     around a 2 m wide ramp). Its top is where the level says."""
     env = BalluEnv(1, replace(BalluConfig(), task=task))
@@ -382,7 +382,7 @@ def test_terrain_spans_the_lane(task, level, top):
     assert hi[2] == pytest.approx(top, abs=0.02)      # AABBs carry a small collision margin
 
 
-def test_base_frame_velocities_are_world_velocities_rotated_into_the_pelvis():
+def test_ballu_base_frame_velocities_are_world_velocities_rotated_into_the_pelvis():
     """The observation's base velocities are R^T v (the base frame, as Isaac Lab reports them) [facts];
     checked against scipy's rotations and against the world-frame reading of a tilted, moving pelvis."""
     from scipy.spatial.transform import Rotation
@@ -403,7 +403,7 @@ def test_base_frame_velocities_are_world_velocities_rotated_into_the_pelvis():
     assert abs(obs[0, 0] - 0.7) > 0.05                          # the frame really differs from the world's
 
 
-def test_quirk_torque_rotates_with_the_balloon_and_rights_it():
+def test_ballu_quirk_torque_rotates_with_the_balloon_and_rights_it():
     """r x F with r along the balloon's own axis: zero when upright, against the tilt when tilted [facts QUIRK];
     in the simulator a tilted balloon swings back faster with the quirk on."""
     lift = [0.0, 0.0, 1.5]
@@ -426,7 +426,7 @@ def test_quirk_torque_rotates_with_the_balloon_and_rights_it():
     assert swing[1] < swing[0] - 0.02, swing                      # the quirk turned it back further
 
 
-def test_random_open_loop_rollouts_are_stable_and_hold_joint_limits():
+def test_ballu_random_open_loop_rollouts_are_stable_and_hold_joint_limits():
     """Random piecewise-constant actions (bang-bang included) on random D3 designs and the baseline, with the
     default instant knee target: no blow-up, no joint more than 0.05 rad past its limit (issue 14)."""
     out = ballu.stability_audit(episodes=16, steps=160, seed=3)
@@ -434,7 +434,7 @@ def test_random_open_loop_rollouts_are_stable_and_hold_joint_limits():
     assert out["limit_excess"].max() <= 0.05, out["limit_excess"].max()
 
 
-def test_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch):
+def test_ballu_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch):
     """needs_fine_substeps flags a joint faster than fine_speed or about to cross a limit within the step; the
     world then steps with substeps_fine. Forcing the rule on (off) gives fixed 8 (4) substeps' trajectory bit
     for bit, so the switch reaches Bullet; bang-bang knees trigger it in some steps, not in all."""
@@ -467,15 +467,15 @@ def test_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch):
                                            ({"substeps_fine": 2}, "substeps_fine=2 must be >= substeps=4"),
                                            ({"drag_coef": -0.1}, "drag_coef=-0.1 must be a finite number >= 0"),
                                            ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite")])
-def test_bad_simulator_settings_name_the_field(change, match):
+def test_ballu_bad_simulator_settings_name_the_field(change, match):
     with pytest.raises(ValueError, match=match):
         BalluEnv(1, replace(BalluConfig(), **change))
 
 
-ENERGY_TOL = 0.015   # J over an episode; see test_energy_audit_finds_no_energy_created
+ENERGY_TOL = 0.015   # J over an episode; see test_ballu_energy_audit_finds_no_energy_created
 
 
-def test_energy_audit_finds_no_energy_created():
+def test_ballu_energy_audit_finds_no_energy_created():
     """Mechanical energy never rises by more than the work of the knee torques, buoyancy and drag + ENERGY_TOL.
 
     ENERGY_TOL = 15 mJ over a whole 8 s episode is 10 % of one full knee stroke's work (0.0848 N m x 1.75 rad
@@ -500,7 +500,7 @@ def test_energy_audit_finds_no_energy_created():
     assert (np.abs(trace).max(axis=0) < 0.01 * mon.work).all(), np.abs(trace).max()   # ... and accounted for
 
 
-def test_capability_gaits_and_clearance_measure():
+def test_ballu_capability_gaits_and_clearance_measure():
     """The capability search's gait family holds the pump gaits exactly, and a standing robot's peak toe
     clearance is ~0: the spawn drop (feet 0.2-0.3 m up at t = 0) does not count as a jump."""
     acts = ballu.gait_actions(ballu.PUMP_GAITS, 60)
@@ -516,7 +516,7 @@ D2_BOX = ges.Box(("gcr", "spcf"), (0.72, 0.001), (0.90, 0.100))             # D2
 D3_BOX = ges.Box(("gcr", "spcf", "l"), (0.72, 0.001, 0.25), (0.90, 0.100, 0.55))
 
 
-def test_table_i_baseline_and_box():
+def test_ballu_table_i_baseline_and_box():
     assert ballu.TABLE_I == {"l_f": (0.25, 0.55), "l_t": (0.25, 0.55), "gcr": (0.72, 0.90), "spcf": (0.001, 0.100)}
     assert dict(zip(ballu.DESIGN_NAMES, BASELINE)) == {"l_f": 0.45, "l_t": 0.45, "gcr": 0.70, "spcf": 0.002}
     with pytest.raises(ValueError, match="gcr"):  # the baseline's GCR lies outside Table I (facts)
@@ -524,7 +524,7 @@ def test_table_i_baseline_and_box():
     assert ges.Box.of(ballu.d2()) == D2_BOX and ges.Box.of(ballu.d3()) == D3_BOX
 
 
-def test_d2_d3_bounds_and_full():
+def test_ballu_d2_d3_bounds_and_full():
     s2, s3 = ballu.d2(), ballu.d3()
     assert s2.names == ("gcr", "spcf") and s2.lows == (0.72, 0.001) and s2.highs == (0.90, 0.100)
     assert s3.names == ("gcr", "spcf", "l") and s3.lows == (0.72, 0.001, 0.25) and s3.highs == (0.90, 0.1, 0.55)
@@ -561,7 +561,7 @@ def brute_force_returns(rewards, values, dones, last_value, gamma, lam):
     return adv
 
 
-def test_gae_equals_brute_force_with_terminations_and_truncations():
+def test_ppo_gae_equals_brute_force_with_terminations_and_truncations():
     rng = np.random.default_rng(0)
     T, N = 30, 5
     r, v = rng.normal(size=(T, N)), rng.normal(size=(T, N))
@@ -630,7 +630,7 @@ def test_ppo_solves_a_point_mass(tmp_path):
     assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
 
 
-def test_adaptive_kl_rate_is_clamped_at_max_lr(tmp_path):
+def test_ppo_adaptive_kl_rate_is_clamped_at_max_lr(tmp_path):
     """PPOConfig.max_lr caps the adaptive-KL rate (issue 16: 1e-3, the facts 1e-2): on the point mass the KL
     stays small, so the rate grows x1.5 per minibatch until it meets the cap, and never passes it."""
     cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=1e-4, max_lr=2e-4)
@@ -642,7 +642,7 @@ def test_adaptive_kl_rate_is_clamped_at_max_lr(tmp_path):
     assert max(lrs) == pytest.approx(2e-4) and all(lr <= 2e-4 * (1 + 1e-9) for lr in lrs), lrs
 
 
-def test_scale_rewards_divides_by_the_std_of_each_lanes_discounted_return():
+def test_ppo_scale_rewards_divides_by_the_std_of_each_lanes_discounted_return():
     """reward_norm: rewards / std of every lane's discounted return so far (brute force over two rollouts,
     episodes cut by dones, the running statistics carried across); the time-limit bootstrap is added unscaled.
     Off: the rewards plus the bootstrap, unchanged."""
@@ -666,7 +666,7 @@ def test_scale_rewards_divides_by_the_std_of_each_lanes_discounted_return():
     np.testing.assert_array_equal(off, bufs[0]["rew"] + bufs[0]["boot"])
 
 
-def test_reward_norm_solves_the_point_mass_and_resumes_its_statistics(tmp_path):
+def test_ppo_reward_norm_solves_the_point_mass_and_resumes_its_statistics(tmp_path):
     """The point mass of the test above with reward_norm: learned, and the return statistics are in the
     checkpoint; a resumed run starts from them."""
     cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4, reward_norm=True)
@@ -680,7 +680,7 @@ def test_reward_norm_solves_the_point_mass_and_resumes_its_statistics(tmp_path):
 
 
 @pytest.mark.parametrize("kind", ["mlp", "moe"])
-def test_max_std_bounds_the_action_std_that_the_entropy_bonus_widens(kind, tmp_path):
+def test_ppo_max_std_bounds_the_action_std_that_the_entropy_bonus_widens(kind, tmp_path):
     """A large entropy bonus widens the std past 0.5 within a few updates; PPOConfig.max_std = 0.3 holds it
     at 0.3 (a projection after every optimiser step), for both actor-critics."""
     stds = {}
@@ -692,7 +692,7 @@ def test_max_std_bounds_the_action_std_that_the_entropy_bonus_widens(kind, tmp_p
     assert stds[0.0] > 0.5 and stds[0.3] <= 0.3 + 1e-6, stds
 
 
-def test_checkpoint_round_trip_and_clear_errors(tmp_path):
+def test_ppo_checkpoint_round_trip_and_clear_errors(tmp_path):
     cfg = ppo.PPOConfig(num_envs=8, num_steps=8, design_dim=1)   # the MoE gate reads the last obs entry
     ck = str(tmp_path / "a.pt")
     ppo.train("moe", PointMass(8), None, 64, ck, cfg, seed=1, progress=None)
@@ -717,7 +717,7 @@ def test_checkpoint_round_trip_and_clear_errors(tmp_path):
         ppo.train("mlp", PointMass(8), None, 64, str(tmp_path / "b.pt"), cfg, init_ckpt=ck, progress=None)
 
 
-def test_train_start_level_is_one_level_or_a_uniform_spread(tmp_path):
+def test_ppo_train_start_level_is_one_level_or_a_uniform_spread(tmp_path):
     """start_level=(low, high) starts each lane at its own level in [low, high]; an int starts all at it."""
     seen = []
 
@@ -761,7 +761,7 @@ class SplitPointMass(JoinedPointMass):
 
 
 @pytest.mark.parametrize("text", ["10:5", "abc", "80", "-1", "3:", ":4"])
-def test_start_level_argument_errors_name_the_range(text):
+def test_ppo_start_level_argument_errors_name_the_range(text):
     import argparse
     with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
         ppo._levels_arg(text)
@@ -773,7 +773,7 @@ def test_start_level_argument_errors_name_the_range(text):
     assert run_all.start_levels("ramp", run_all.SMOKE) == (0, 2) and run_all.start_levels("obstacle", run_all.QUICK) == 0
 
 
-def test_rollout_split_over_workers_equals_one_process():
+def test_ppo_rollout_split_over_workers_equals_one_process():
     """Each worker rolling out its own lanes with a policy copy gives the buffers of one in-process rollout
     (the noise is per lane), across episode ends (40-step episodes, 50 steps: time-limit bootstraps included)."""
     cfg = ppo.PPOConfig(num_envs=8, num_steps=50)
@@ -798,7 +798,7 @@ def test_rollout_split_over_workers_equals_one_process():
     np.testing.assert_allclose(b1["logp"], logp, rtol=1e-4, atol=1e-4)
 
 
-def test_vecballu_rollout_in_workers_equals_one_process():
+def test_ppo_vecballu_rollout_in_workers_equals_one_process():
     """ppo's rollout with a policy copy in each of 2 VecBallu workers gives what one process gives."""
     cfg, bcfg = ppo.PPOConfig(num_envs=4, num_steps=6), BalluConfig(task="ramp")
     torch.manual_seed(0)
@@ -820,7 +820,7 @@ def test_vecballu_rollout_in_workers_equals_one_process():
     np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-4, atol=1e-5)
 
 
-def test_score_in_workers_equals_score_in_one_process():
+def test_ballu_score_in_workers_equals_score_in_one_process():
     """ballu.score in the shared worker pool (each worker plays its designs with its own policy copy) gives
     exactly the scores of one process, for a per-lane scripted gait and a learned policy; the pool is reused."""
     cfg = replace(BalluConfig(), episode_steps=100)
@@ -854,7 +854,7 @@ class HysteresisPump:
         return np.where(last > 0.5, q < 1.7, q < 0.6).astype(float)
 
 
-def test_score_reuse_replays_known_levels_exactly(monkeypatch):
+def test_ballu_score_reuse_replays_known_levels_exactly(monkeypatch):
     """score(reuse=True) plays each level of a design's walk once: J and every episode's final x equal playing
     every episode, on walks that climb, then hold a level (the robot lands on the box and stays there), that sit
     on the floor level 0, and on the ramp (the wedge is rebuilt each level), with fewer physics steps; reuse needs
@@ -886,7 +886,7 @@ def test_score_reuse_replays_known_levels_exactly(monkeypatch):
         ballu.score(HysteresisPump(), designs[:1], "obstacle", level_steps=(2, 1), reuse=True)
 
 
-def test_score_of_a_design_does_not_depend_on_its_call_mates():
+def test_ballu_score_of_a_design_does_not_depend_on_its_call_mates():
     """A lane's trajectory can depend on its PyBullet world-mates once robots reach the box (a first lane's x
     moved 4 mm when its world held 3 instead of 4 lanes), so score gives each design a world of its own: the
     same trajectories with 1 or 2 workers, and for a design scored with 4 others or with 2."""
@@ -944,7 +944,7 @@ def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     assert ppo.protocol(str(tmp_path), **dict(kw, rescore=True)) == again and os.path.getmtime(path) == stamp
 
 
-def test_gaussian_log_prob_and_entropy_match_torch_normal():
+def test_ppo_gaussian_log_prob_and_entropy_match_torch_normal():
     """The update's hand-written log N(a; mu, std) and entropy equal torch.distributions.Normal's."""
     g = torch.Generator().manual_seed(0)
     act, mu, log_std = torch.randn(7, 2, generator=g), torch.randn(7, 2, generator=g), torch.randn(2, generator=g)
@@ -955,7 +955,7 @@ def test_gaussian_log_prob_and_entropy_match_torch_normal():
 
 
 @pytest.mark.parametrize("m, s", [(0.0, 2.0), (1.5, 0.7), (-3.0, 1.2)])
-def test_squashed_entropy_matches_numerical_integration(m, s):
+def test_ppo_squashed_entropy_matches_numerical_integration(m, s):
     """The squashed policy's entropy bonus (its Gaussian entropy plus E log sigmoid'(u), on the minibatch's
     samples) equals -int p(a) log p(a) da of a = sigmoid(u), u ~ N(m, s), integrated numerically, with
     p(a) = N(logit a; m, s) / (a (1 - a)) (change of variables). Both action dims alike: twice the 1-D value."""
@@ -970,7 +970,7 @@ def test_squashed_entropy_matches_numerical_integration(m, s):
     assert abs(float(got) - 2 * ref) < 0.01
 
 
-def test_squash_sends_sigmoid_actions_and_policy_fn_plays_the_squashed_mean():
+def test_ppo_squash_sends_sigmoid_actions_and_policy_fn_plays_the_squashed_mean():
     """squash=True: the env gets sigmoid(u) in (0, 1); the deterministic policy plays sigmoid(mean); off, u."""
     u = np.array([[-30.0, 0.0], [2.0, 30.0]])
     np.testing.assert_allclose(ppo.to_env(u, ppo.PPOConfig(squash=True)), [[0.0, 0.5], [1 / (1 + math.exp(-2)), 1.0]],
@@ -983,7 +983,7 @@ def test_squash_sends_sigmoid_actions_and_policy_fn_plays_the_squashed_mean():
     np.testing.assert_allclose(squashed, 1 / (1 + np.exp(-plain)), rtol=1e-12)
 
 
-def test_split_clip_bounds_actor_and_critic_gradients_apart():
+def test_ppo_split_clip_bounds_actor_and_critic_gradients_apart():
     """split_clip: each of actor and critic is clipped to max_grad_norm on its own, so a large critic gradient
     no longer shrinks the actor's; the joint clip [facts] scales both by the same factor."""
     torch.manual_seed(0)
@@ -1006,7 +1006,7 @@ def test_split_clip_bounds_actor_and_critic_gradients_apart():
                 assert norm_of(actor) < a0 / 50                         # shrunk with the critic
 
 
-def test_moe_gate_weights_sum_to_one_and_get_gradients():
+def test_ppo_moe_gate_weights_sum_to_one_and_get_gradients():
     torch.manual_seed(0)
     cfg = ppo.PPOConfig()
     pol = ppo.MoEActorCritic(ballu.OBS_DIM, 2, cfg)
@@ -1513,7 +1513,7 @@ def truncnorm_pdfs(p: Parzen, x):
 
 
 @pytest.mark.parametrize("multivariate", [False, True])
-def test_parzen_log_pdf_equals_truncnorm_mixture(multivariate):
+def test_tpe_parzen_log_pdf_equals_truncnorm_mixture(multivariate):
     rng = np.random.default_rng(1)
     lows, highs = [-1.0, 0.0, 10.0], [2.0, 0.01, 30.0]
     p = random_parzen(rng, 9, lows, highs, multivariate)
@@ -1528,13 +1528,13 @@ def test_parzen_log_pdf_equals_truncnorm_mixture(multivariate):
     np.testing.assert_allclose(p.log_pdf(x), ref, rtol=1e-10, atol=1e-10)
 
 
-def test_parzen_prior_kernel_is_centre_with_range_width():
+def test_tpe_parzen_prior_kernel_is_centre_with_range_width():
     p = random_parzen(np.random.default_rng(2), 4, [0.0, -3.0], [1.0, 5.0], False)
     np.testing.assert_array_equal(p.mus[-1], [0.5, 1.0])
     np.testing.assert_array_equal(p.sigmas[-1], [1.0, 8.0])
 
 
-def test_parzen_samples_follow_the_mixture():
+def test_tpe_parzen_samples_follow_the_mixture():
     """1-D samples pass a KS test against the truncnorm mixture's CDF."""
     rng = np.random.default_rng(3)
     p = random_parzen(rng, 6, [2.0], [5.0], False)
@@ -1548,7 +1548,7 @@ def test_parzen_samples_follow_the_mixture():
     assert stats.kstest(samples, cdf).pvalue > 1e-3
 
 
-def test_multivariate_samples_keep_dimensions_together():
+def test_tpe_multivariate_samples_keep_dimensions_together():
     """Two narrow kernels at (0.1, 0.1) and (0.9, 0.9): joint sampling stays near the
     diagonal; univariate sampling mixes dimensions (~half the mass off it)."""
     def make(multivariate):
@@ -1564,12 +1564,12 @@ def test_multivariate_samples_keep_dimensions_together():
 
 
 # --- the small rules ---
-def test_gamma_rule():
+def test_tpe_gamma_rule():
     cfg = TPEConfig()
     assert [n_good(n, cfg) for n in (1, 10, 11, 100, 101, 250, 1000)] == [1, 1, 2, 10, 11, 25, 25]
 
 
-def test_recency_weights():
+def test_tpe_recency_weights():
     cfg = TPEConfig()
     np.testing.assert_array_equal(recency_weights(25, cfg), np.ones(25))
     w = recency_weights(30, cfg)
@@ -1577,7 +1577,7 @@ def test_recency_weights():
     np.testing.assert_array_equal(w[5:], np.ones(25))
 
 
-def test_neighbour_bandwidths():
+def test_tpe_neighbour_bandwidths():
     cfg = TPEConfig()
     lows, highs = np.array([0.0, 0.0]), np.array([1.0, 10.0])
     X = np.array([[0.5, 0.0], [0.0, 2.0], [1.0, 10.0], [0.1, 6.0]])
@@ -1605,7 +1605,7 @@ def records(study):
 
 
 @pytest.mark.parametrize("multivariate", [False, True])
-def test_same_seed_same_trials(multivariate):
+def test_tpe_same_seed_same_trials(multivariate):
     cfg = TPEConfig(multivariate=multivariate)
     run = lambda seed: optimize(flaky, [0, 0, 0], [1, 1, 1], 30, seed, cfg, verbose=False)
     assert records(run(3)) == records(run(3))
@@ -1613,7 +1613,7 @@ def test_same_seed_same_trials(multivariate):
 
 
 @pytest.mark.parametrize("parallel", [2, 3])
-def test_parallel_startup_trials_equal_the_sequential_study(parallel):
+def test_tpe_parallel_startup_trials_equal_the_sequential_study(parallel):
     """run_all's cost stage runs per-design BO's startup trials one per core: the study must not change,
     failed trials (which extend the startup) included."""
     from concurrent.futures import ThreadPoolExecutor
@@ -1632,7 +1632,7 @@ class Interrupt(BaseException):
 
 
 @pytest.mark.parametrize("stop_after", [4, 17])  # inside and after the random startup
-def test_resumed_optimize_equals_uninterrupted(tmp_path, stop_after):
+def test_tpe_resumed_optimize_equals_uninterrupted(tmp_path, stop_after):
     box = ([0, 0], [1, 1])
     full = optimize(flaky, *box, 40, seed=5, path=str(tmp_path / "full.json"), verbose=False)
     calls = []
@@ -1653,7 +1653,7 @@ def test_resumed_optimize_equals_uninterrupted(tmp_path, stop_after):
     assert not (tmp_path / "resumed.json.tmp").exists()
 
 
-def test_resumed_ask_tell_equals_uninterrupted(tmp_path):
+def test_tpe_resumed_ask_tell_equals_uninterrupted(tmp_path):
     def drive(study, n):
         for _ in range(n):
             x = study.suggest()
@@ -1670,7 +1670,7 @@ def test_resumed_ask_tell_equals_uninterrupted(tmp_path):
     assert records(resumed) == records(full)
 
 
-def test_resume_refuses_a_different_study(tmp_path):
+def test_tpe_resume_refuses_a_different_study(tmp_path):
     path = str(tmp_path / "study.json")
     optimize(quadratic, [0, 0], [1, 1], 3, seed=1, path=path, verbose=False)
     with pytest.raises(ValueError, match="seed"):
@@ -1688,7 +1688,7 @@ def test_resume_refuses_a_different_study(tmp_path):
 @pytest.mark.parametrize("lows,highs,match", [
     ([0, 1], [1, 1], "low"), ([2.0], [1.0], "low"), ([0, np.nan], [1, 1], "finite"),
     ([0, 0], [1, np.inf], "finite"), ([0, 0], [1, 1, 1], "equal length"), ([], [], "non-empty")])
-def test_bad_bounds_raise(lows, highs, match):
+def test_tpe_bad_bounds_raise(lows, highs, match):
     with pytest.raises(ValueError, match=match):
         TPE(lows, highs)
     with pytest.raises(ValueError, match=match):
@@ -1696,13 +1696,13 @@ def test_bad_bounds_raise(lows, highs, match):
 
 
 @pytest.mark.parametrize("n_trials", [0, -3, 2.5, True])
-def test_bad_n_trials_raises(n_trials):
+def test_tpe_bad_n_trials_raises(n_trials):
     with pytest.raises(ValueError, match="n_trials"):
         optimize(quadratic, [0], [1], n_trials, verbose=False)
 
 
 @pytest.mark.parametrize("x", [[0.5], [0.5, 0.5, 0.5], [[0.5, 0.5]], [np.nan, 0.5], [0.5, 1.5]])
-def test_bad_point_raises(x):
+def test_tpe_bad_point_raises(x):
     with pytest.raises(ValueError, match="x must"):
         TPE([0, 0], [1, 1]).observe(x, 1.0)
 
@@ -1711,12 +1711,12 @@ def test_bad_point_raises(x):
     (dict(direction="max"), "direction"), (dict(gamma_frac=0.0), "gamma_frac"),
     (dict(n_candidates=0), "n_candidates"), (dict(n_startup=2.0), "n_startup"),
     (dict(prior_weight=-1.0), "prior_weight"), (dict(min_bw_cap=0.5), "min_bw_cap")])
-def test_bad_config_raises(kwargs, match):
+def test_tpe_bad_config_raises(kwargs, match):
     with pytest.raises(ValueError, match=match):
         TPEConfig(**kwargs)
 
 
-def test_bad_seed_names_and_y_raise():
+def test_tpe_bad_seed_names_and_y_raise():
     with pytest.raises(ValueError, match="seed"):
         TPE([0], [1], seed=-1)
     with pytest.raises(ValueError, match="names"):
@@ -1725,7 +1725,7 @@ def test_bad_seed_names_and_y_raise():
         TPE([0], [1]).observe([0.5], "good")
 
 
-def test_failing_objective_becomes_failed_trial(tmp_path):
+def test_tpe_failing_objective_becomes_failed_trial(tmp_path):
     path = str(tmp_path / "study.json")
     study = optimize(flaky, [0, 0], [1, 1], 40, seed=0, path=path, verbose=False)
     failed = [t for t in study.trials if not t.ok]
@@ -1741,7 +1741,7 @@ def test_failing_objective_becomes_failed_trial(tmp_path):
     assert len({tuple(t.x) for t in always_fails.trials}) == 5
 
 
-def test_failed_trials_are_left_out_of_the_densities():
+def test_tpe_failed_trials_are_left_out_of_the_densities():
     """Histories that differ only in where failed trials were give the same suggestions.
     (Failed points sit at the optimum in one history: were they counted, g(x) would
     push the proposal away from there.)"""
@@ -1761,7 +1761,7 @@ def test_failed_trials_are_left_out_of_the_densities():
 
 # --- both directions, both modes ---
 @pytest.mark.parametrize("multivariate", [False, True])
-def test_maximize_mirrors_minimize(multivariate):
+def test_tpe_maximize_mirrors_minimize(multivariate):
     """Maximising -f must make exactly the trials minimising f makes."""
     cfg = TPEConfig(multivariate=multivariate)
     mini = optimize(branin_ref, *BRANIN_BOX, 40, 0, cfg, verbose=False)
@@ -1774,7 +1774,7 @@ def test_maximize_mirrors_minimize(multivariate):
 
 
 @pytest.mark.parametrize("multivariate", [False, True])
-def test_suggestions_stay_in_bounds(multivariate):
+def test_tpe_suggestions_stay_in_bounds(multivariate):
     lows, highs = [0.5, 0.0, -2.0, 100.0], [1.0, 0.01, 2.0, 101.0]
     study = optimize(lambda x: float(np.sum(x)), lows, highs, 40, 0,
                      TPEConfig(multivariate=multivariate), verbose=False)
@@ -1782,7 +1782,7 @@ def test_suggestions_stay_in_bounds(multivariate):
     assert X.shape == (40, 4) and np.all(X >= lows) and np.all(X <= highs)
 
 
-def test_progress_lines_and_callback(capsys):
+def test_tpe_progress_lines_and_callback(capsys):
     seen = []
     optimize(flaky, [0, 0], [1, 1], 5, names=["gcr", "spcf"], verbose=True,
              callback=lambda study, trial: seen.append(trial.index))
