@@ -1,15 +1,17 @@
 """ppo.py -- PPO from scratch in torch, with the MLP and MoE actor-critics of the GES paper.
 
 Read top to bottom:
-  1. settings (`PPOConfig`)                         -- ballu_facts.md "PPO as they ran it"
+  1. settings (`PPOConfig`)                         -- docs/facts.md "PPO as they ran it"
   2. running observation normalisation
   3. actor-critics: `MLPActorCritic` (e2e MLP and every GES specialist), `MoEActorCritic` (e2e MoE)
   4. GAE and the PPO update (clipped surrogate, value loss, entropy bonus, adaptive-KL learning rate)
   5. the trainer: checkpoints, `rollout` (here or in the env's workers), `start_run` (resume, warm start or fresh),
      `TrainLog` (CSV + progress line), `train(...)` (rollout -> GAE -> PPO update, curriculum), learning curve
   6. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
-  7. the protocol that compares PPO settings on BALLU (`protocol`, `PROTOCOL_SETTINGS`)
-  8. command line: --bench, --train, --protocol, --strip
+  7. benchmark: end-to-end training against stepping the env alone (`python ppo.py --bench`)
+
+This module imports no env: training one policy on BALLU is `python -m experiments.ppo_ballu train`, comparing
+PPO settings on it `python -m experiments.ppo_protocol` (docs/ppo_protocol).
 
 The env is anything with the batched interface of ballu.py: `num_envs`, `obs_dim`, `act_dim`,
 `reset(seed=, options=) -> (obs, info)` and `step(actions) -> (obs, reward, terminated, truncated, info)` with
@@ -37,37 +39,27 @@ import torch.nn as nn
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class PPOConfig:
-    """PPO settings: [facts] = the authors' runs (ballu_facts.md), [ours] = adapted to a 2-core CPU.
+    """PPO settings: [facts] = the authors' runs (docs/facts.md), [ours] = adapted to a 2-core CPU.
 
-    Issue 16 screened the batch shape, entropy bonus, std bound and reward scale on BALLU (`--protocol`,
-    README "Does PPO learn BALLU?"): none beat these values beyond the seed spread at 1 M steps (obstacle,
-    3 seeds: more_epochs +1.3 +- 0.9 cm, reward_norm -1.2 +- 1.7; one seed: no_entropy, max_std,
-    fewer_epochs, unscaled_reward lower), so they stay. Two levers helped: where lanes start
-    (ballu.train_start_levels, not a PPO setting) and the adaptive-KL rate's cap (max_lr). Later screens against
-    today's defaults (obstacle, 1 M): split_clip +0.5 +- 1.0 cm (3 seeds); squash, the authors' reward terms and
-    obs_clip 10 no better (one seed: 16.3, 14.4, 20.1 cm against 20.3), so squash and split_clip stay off.
-    max_std 0.4 from the start (`std_cap`, to 2 M) is no better either: ramp J -3.3 +- 0.3 deg at 1 M and
-    -4.2 +- 0.5 at 2 M (2 seeds), obstacle not better beyond the seed spread at 2 M, so max_std stays free.
-    The spread start on the obstacle with the capped rate (`lr_cap_spread`) is no better either (+0.1 +- 1.0 cm
-    at 1 M, +1.4 +- 2.2 at 2 M, 3 seeds). One checkpoint's obstacle J moves ~1.7 cm (SD) between CPU models,
-    as much as any obstacle lever screened (README "One machine's scores"); the ramp's J moves 0.5 deg."""
+    The fixed protocol of docs/ppo_protocol screened batch shape, epochs, entropy bonus, std bound, squashed
+    actions, reward form and scale, observation clip, gradient clip, learning-rate cap and curriculum start on
+    BALLU (3 seeds where it mattered): only the learning-rate cap (max_lr) and the ramp's spread start
+    (ballu.train_start_levels) beat the facts' values beyond the seed spread, so every other value is the facts'
+    and every lever stays an option, off by default."""
     hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
     init_std: float = 0.5              # [facts] initial action std (state independent)
     init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
     lr: float = 1e-4                   # [facts] initial learning rate, then adaptive KL
     desired_kl: float = 0.01           # [facts] adaptive-KL target
     max_lr: float = 1e-3               # [ours] upper clamp of the adaptive-KL rate (facts, rsl_rl: 1e-2, which let
-    #   the rate jump 1e-5 <-> 1e-2 within a few updates). Protocol `lr_cap` vs `before`/`spread_start`, 3 seeds:
-    #   obstacle J +2.0 +- 0.5 cm at 1 M, -2.3 +- 0.6 at 2 M (every seed both times); ramp +1.2 +- 4.2 deg at
-    #   1 M, +5.1 +- 7.6 at 2 M, worst seed 27.0 not 15.0. Chosen for the presets' budgets (<= 1 M per policy).
-    #   Rescored on an AMD EPYC: ramp lr_cap - before +6.8 +- 2.7 deg at 2 M, as on the Xeon; obstacle lr_cap -
-    #   before -0.7 +- 0.4 cm at 1 M: the obstacle's J moves ~1.7 cm between CPUs (README), so the ramp decides.
+    #   the rate jump 1e-5 <-> 1e-2 within a few updates): ramp J +6.8 +- 2.7 deg at 2 M steps, 3 seeds, on two
+    #   CPU models; the obstacle showed no difference beyond its scoring noise (docs/ppo_protocol)
     clip: float = 0.2                  # [facts]
-    entropy_coef: float = 0.01         # [facts] kept: 0 ended lowest in the screen (J 11.7 vs 21.0, one seed)
+    entropy_coef: float = 0.01         # [facts] kept: 0 ended lowest in the screen (docs/ppo_protocol)
     max_std: float = 0.0               # [ours] > 0: the action std is held <= this after each step (0 = free)
     squash: bool = False               # [ours] True: the env gets sigmoid(u) of the Gaussian sample u, an action in
-    #   (0, 1) (ballu's servo range), instead of u clipped by the env; see `to_env` (issue 16 screen)
-    split_clip: bool = False           # [ours] True: actor and critic gradients are norm-clipped apart (issue 16)
+    #   (0, 1) (ballu's servo range), instead of u clipped by the env; see `to_env` (screened: no better)
+    split_clip: bool = False           # [ours] True: actor and critic gradients are norm-clipped apart (screened)
     reward_norm: bool = False          # [ours] rewards / running std of the discounted return (see scale_rewards)
     value_coef: float = 1.0            # [ours] (rsl_rl's default)
     epochs: int = 5                    # [facts] kept: 10 x 8 gave +1.3 +- 0.9 cm (3 seeds), 2 x 2 lower
@@ -196,7 +188,7 @@ def make_policy(kind: str, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfi
 
 def to_env(u, cfg: PPOConfig):
     """The action the env gets for the Gaussian sample (or mean) u: u itself (the env clips it to its range), or
-    sigmoid(u) if `cfg.squash` [ours, issue 16]. Squashed, a policy whose mean is far outside [0, 1] still gets
+    sigmoid(u) if `cfg.squash` [ours, an option]. Squashed, a policy whose mean is far outside [0, 1] still gets
     a gradient (a clipped action is the same for every mean beyond the bound). PPO keeps u: the ratio
     p_new(a) / p_old(a) of the squashed actions equals that of u (the Jacobian |da/du| cancels), and the KL of
     the two policies is the same in u and a, so only the entropy needs the Jacobian (`entropy_bonus`)."""
@@ -238,7 +230,7 @@ def scale_rewards(buf, acc, ret_norm: RunningNorm, cfg: PPOConfig) -> np.ndarray
     observation), which is already in the critic's units. `acc` (N,) carries each lane's discounted return
     across rollouts and is updated in place, as is `ret_norm`.
 
-    [ours, issue 16] BALLU's dt-scaled eq. 4 rewards give returns of ~-60 to -250 (value loss 15-40 at 1 M
+    [ours, an option] BALLU's dt-scaled eq. 4 rewards give returns of ~-60 to -250 (value loss 15-40 at 1 M
     steps); scaled, the critic's targets are O(1) whatever the reward form, its scale or the design."""
     if not cfg.reward_norm:
         return buf["rew"] + buf["boot"]
@@ -267,7 +259,7 @@ def entropy_bonus(mu, log_std, act, old_mu, old_std, cfg: PPOConfig):
 
 def clip_gradients(policy, cfg: PPOConfig):
     """One norm clip over all weights [facts, rsl_rl], or actor and critic apart if `cfg.split_clip` [ours,
-    issue 16]: the critic's gradient (value loss 15-40 on dt-scaled BALLU rewards) otherwise sets the scale
+    an option]: the critic's gradient (value loss 15-40 on dt-scaled BALLU rewards) otherwise sets the scale
     of the actor's step."""
     if not cfg.split_clip:
         nn.utils.clip_grad_norm_(policy.parameters(), cfg.max_grad_norm)
@@ -604,7 +596,7 @@ class PolicyFn:
     Row by row [ours]: a batched matrix product rounds a row differently for other batch sizes (measured: 33 of
     400 sub-batches of a random MLP differ from the full batch), and contact physics turns rounding into other
     trajectories. So a design's J must not depend on which designs share its call, or on the worker count.
-    Costs ~27 us per row, ~2 % of the physics of a 20 Hz step (issue 15). Being pure (no state, rows
+    Costs ~27 us per row, ~2 % of the physics of a 20 Hz step. Being pure (no state, rows
     independent), it lets ballu.score play each level of a walk once (`reuse`)."""
     pure = True
 
@@ -633,336 +625,8 @@ def load_policy(path: str) -> PolicyFn:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 7. The PPO protocol on BALLU (issue 16): one fixed comparison of settings
+# 7. Benchmark: end-to-end training against the env alone
 # ----------------------------------------------------------------------------------------------------------
-# Each setting = changes to PPOConfig, to ballu.BalluConfig, and/or the training curriculum's "start_level".
-# "before" is what the project trained with before issue 16 (the facts' PPO values, initial mean action 0.5).
-# Every setting but lr_cap was run before max_lr's default became 1e-3, so it pins the facts' 1e-2 (BEFORE).
-BEFORE = {"init_action_mean": 0.5, "max_lr": 1e-2}
-LR_CAP = {"init_action_mean": 0.5, "max_lr": 1e-3, "start_level": "task"}
-PROTOCOL_SETTINGS = {
-    "before": BEFORE,
-    # candidates to screen (1 M steps, one seed, one task), each one lever of issue 16 changed from "before":
-    "no_entropy": {**BEFORE, "entropy_coef": 0.0},                  # the std no longer widens for free
-    "fewer_epochs": {**BEFORE, "epochs": 2, "minibatches": 2},      # 4 gradient steps per batch, not 20
-    "big_batch": {**BEFORE, "num_steps": 128, "minibatches": 2},    # 4,096 samples per update
-    "spread_start": {**BEFORE, "start_level": "spread"},            # levels 0..the score's start level
-    "unscaled_reward": {**BEFORE, "reward_dt_scale": False},        # the authors' fork's reward scale
-    "max_std": {**BEFORE, "max_std": 0.5},                          # std held <= its start value
-    "reward_norm": {**BEFORE, "reward_norm": True},                 # critic targets O(1)
-    "more_epochs": {**BEFORE, "epochs": 10, "minibatches": 8},      # 80 gradient steps per batch
-    # the adaptive-KL rate swings 1e-5 <-> 3e-3 within a few updates while ramp runs collapse past 1 M (issue 16)
-    "lr_cap": LR_CAP,   # rate <= 10x its start, on the task's default start: today's defaults (compare with
-    #                     spread_start on the ramp, before on the obstacle)
-    # issue 16, later screens, each one lever changed from today's defaults (lr_cap)
-    "squash": {**LR_CAP, "squash": True, "init_action_mean": 0.0, "init_std": 2.0},   # sigmoid(u): a-space std
-    #          0.31 at the start, as the clipped N(0.5, 0.5)'s 0.36
-    "split_clip": {**LR_CAP, "split_clip": True},                   # actor and critic clipped apart
-    "code_reward": {**LR_CAP, "reward_form": "code"},               # the authors' code's reward terms
-    "obs_clip10": {**LR_CAP, "obs_clip": 10.0},                     # normalised observations clipped at 10, not 5
-    # past 1 M the entropy bonus widens the std again (lr_cap obstacle seed 0: 0.40 at 1 M, 0.63 at 3 M) while the
-    # training level falls (11.0 -> 8.9); held at 0.4 from lr_cap's 1 M checkpoint it rose to 16.1 at 2 M instead
-    "std_cap": {**LR_CAP, "max_std": 0.4},                          # held <= 0.4 from the start: screened,
-    #          not adopted (obstacle no better at 2 M, ramp -3.3 deg at 1 M on both seeds; README "Longer training")
-    # lr_cap's capped rate kept the ramp's spread start from collapsing past 1 M; on the obstacle spread_start was
-    # only tried with the facts' 1e-2 (+2.2 cm at 1 M, -2.7 at 2 M with two seeds collapsing): both levers at once
-    "lr_cap_spread": {**LR_CAP, "start_level": "spread"},           # = lr_cap on the ramp (spread is its default);
-    #          screened, not adopted: obstacle +0.1 +- 1.0 cm at 1 M, +1.4 +- 2.2 at 2 M against lr_cap (README)
-    # several levers at once (a guess made before the screen, to see whether they add up)
-    "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
-              "start_level": "spread"},
-}
-PROTOCOL_DESIGN_SEED = 16   # the 12 held-out D2 designs: the same for every setting, task and seed
-
-
-def protocol_designs(n_designs: int = 12) -> np.ndarray:
-    """The protocol's held-out D2 designs (full design vectors): one seeded uniform draw, so every setting, task,
-    seed and fork is scored on the same designs."""
-    import ballu
-    return ballu.d2().full(ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs))
-
-
-def _protocol_run(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg, rescore=False):
-    """Train one (setting, task, seed) to each milestone in turn; J on the held-out designs at each one.
-    Resumable: a milestone's result is kept in result_<steps>.json. rescore: a result scored on another CPU model
-    is scored again here from its policy_<steps>.pt (J differs between CPU models, see cpu_model), kept beside the
-    first score under "rescored", and returned in its place, so one table holds one machine's scores."""
-    import json
-    import shutil
-    import ballu
-    os.makedirs(folder, exist_ok=True)
-    changes = dict(setting)
-    start_level = ballu.named_start_levels(changes.pop("start_level", 0), task)   # "spread" / "task" -> levels
-    ppo_fields = set(asdict(base_cfg))
-    cfg = PPOConfig(**{**asdict(base_cfg), **{k: v for k, v in changes.items() if k in ppo_fields}})
-    bcfg = ballu.BalluConfig(task=task, **{k: v for k, v in changes.items() if k not in ppo_fields})
-    ckpt, log_csv, out = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv"), []
-    here = cpu_model()
-
-    def score(policy_path):   # J of a checkpoint on the held-out designs, and the seconds it took
-        t0 = time.time()
-        J = ballu.score(load_policy(policy_path), designs, task, episodes=episodes, workers=workers, cfg=bcfg)
-        return J, time.time() - t0
-
-    for m in milestones:
-        path = os.path.join(folder, f"result_{m}.json")
-        if os.path.exists(path):
-            with open(path) as f:
-                res = json.load(f)
-            if rescore and res.get("cpu") != here:
-                if here not in res.setdefault("rescored", {}):
-                    J, secs = score(os.path.join(folder, f"policy_{m}.pt"))
-                    res["rescored"][here] = {"J": J.tolist(), "mean_J": float(J.mean()),
-                                             "rescore_s": secs}   # the run's wall time stays its own
-                    with open(path, "w") as f:
-                        json.dump(res, f)
-                res = {**res, **res["rescored"][here], "cpu": here,
-                       "first_score": {"cpu": res.get("cpu", "not recorded"), "mean_J": res["mean_J"]}}
-            out.append(res)
-            continue
-        env = ballu.make_env(cfg.num_envs, workers, bcfg)
-        t0 = time.time()
-        try:
-            summary = train("mlp", env, ballu.UniformDesign(ballu.d2()), m, ckpt, cfg, seed=seed,
-                            start_level=start_level, log_csv=log_csv, progress=None)
-        finally:
-            env.close()
-        train_s = time.time() - t0
-        shutil.copy(ckpt, os.path.join(folder, f"policy_{m}.pt"))
-        J, score_s = score(ckpt)
-        level = float(np.mean(load_checkpoint(ckpt)["levels"].numpy()))
-        res = {"steps": m, "J": J.tolist(), "mean_J": float(J.mean()), "train_level": level,
-               "train_s": train_s, "score_s": score_s, "resumed": bool(summary.get("resumed")), "cpu": here}
-        with open(path, "w") as f:
-            json.dump(res, f)
-        out.append(res)
-    return out
-
-
-def cpu_model() -> str:
-    """The CPU's model name. J is reproducible bit for bit on one machine, not across CPU models: their rounding
-    differs and contacts amplify it (one checkpoint, 12 designs: mean J 21.0 cm on an AMD EPYC VM, 18.9 on an
-    Intel Xeon VM, 11 designs different), so a comparison's scores come from one machine."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        import platform
-        return platform.processor() or platform.machine()
-
-
-def _mean_se(values) -> str:
-    """'mean +- standard error' over seeds (one seed: the value alone)."""
-    v = np.asarray(values, dtype=float)
-    if len(v) == 1:
-        return f"{v[0]:.1f}"
-    return f"{v.mean():.1f} +- {v.std(ddof=1) / math.sqrt(len(v)):.1f}"
-
-
-def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(0, 1, 2),
-             milestones=(1_000_000, 2_000_000), n_designs: int = 12, episodes: int = 20, workers: int = 2,
-             base_cfg: PPOConfig = PPOConfig(), progress=print, rescore: bool = False, table: str = "protocol") -> str:
-    """e2e MLP trained on uniform D2 designs per (setting, task, seed); J over `n_designs` fixed held-out D2 designs
-    at each milestone; a table (mean and standard error over seeds) in out/<table>.md and the training-level
-    curves in out/<table>_curves.png. All settings share designs, budgets, seeds and code. Resumable.
-    rescore: results scored on another CPU model are scored again on this one (_protocol_run)."""
-    unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
-    if unknown:
-        raise ValueError(f"settings {unknown} unknown: one of {sorted(PROTOCOL_SETTINGS)}")
-    designs = protocol_designs(n_designs)
-    runs = [(s, t, seed) for s in settings for t in tasks for seed in seeds]
-    results, t_start = {}, time.time()
-    for i, (s, t, seed) in enumerate(runs):
-        folder = os.path.join(out, s, t, f"seed{seed}")
-        results[(s, t, seed)] = _protocol_run(folder, PROTOCOL_SETTINGS[s], t, seed, milestones, designs, episodes,
-                                              workers, base_cfg, rescore)
-        if progress:
-            eta = (time.time() - t_start) / (i + 1) * (len(runs) - i - 1)
-            last = results[(s, t, seed)][-1]
-            progress(f"protocol {i + 1}/{len(runs)}: {s} {t} seed {seed}: J {last['mean_J']:.1f}, training level "
-                     f"{last['train_level']:.1f}  (eta {eta / 60:.0f} min)")
-    rows = ["| setting | task | " + " | ".join(f"J at {m:,} steps" for m in milestones)
-            + " | training level at the end | wall time per seed |", "|---|---|" + "---|" * (len(milestones) + 2)]
-    for s in settings:
-        for t in tasks:
-            rs = [results[(s, t, seed)] for seed in seeds]
-            cells = [_mean_se([r[k]["mean_J"] for r in rs]) for k in range(len(milestones))]
-            wall = np.mean([sum(x["train_s"] + x["score_s"] for x in r) for r in rs]) / 60
-            rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {_mean_se([r[-1]['train_level'] for r in rs])} "
-                        f"| {wall:.0f} min |")
-    cpus = sorted({x.get("cpu", "not recorded") for r in results.values() for x in r})
-    text = (f"J over {n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED}), {episodes} episodes each; "
-            f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows)
-            + f"\n\nScored on: {'; '.join(cpus)}" + (" (J differs between CPU models: compare scores made on one)"
-                                                    if len(cpus) > 1 else "") + "\n" + _rescore_lines(results, tasks))
-    with open(os.path.join(out, f"{table}.md"), "w") as f:
-        f.write(text)
-    _protocol_curves(out, settings, tasks, seeds, os.path.join(out, f"{table}_curves.png"))
-    return text
-
-
-def _rescore_lines(results, tasks) -> str:
-    """Per task, how far the rescored results' mean J moved from their first score on another CPU model: the
-    scoring noise that rounding alone puts into one checkpoint's J (README "One machine's scores")."""
-    lines = []
-    for t in tasks:
-        pairs = [(x["mean_J"], x["first_score"]) for (_, task, _), r in results.items() if task == t for x in r
-                 if "first_score" in x]
-        if pairs:
-            moved, first = np.array([j - f["mean_J"] for j, f in pairs]), [f for _, f in pairs]
-            spread = f", SD {moved.std(ddof=1):.2f}" if len(moved) > 1 else ""
-            lines.append(f"Rescored here: {len(moved)} {t} results first scored on "
-                         f"{'; '.join(sorted({f['cpu'] for f in first}))}; mean J moved {moved.mean():+.2f} on "
-                         f"average{spread}, at most {np.abs(moved).max():.2f}.\n")
-    return "".join(lines)
-
-
-def _protocol_curves(out, settings, tasks, seeds, path):
-    """Mean training curriculum level against control steps, one line per setting (mean over seeds)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 3.4), squeeze=False)
-    for ax, t in zip(axes[0], tasks):
-        for s in settings:
-            curves = []
-            for seed in seeds:
-                with open(os.path.join(out, s, t, f"seed{seed}", "log.csv")) as f:
-                    rows = list(csv.DictReader(f))
-                curves.append((np.array([float(r["steps"]) for r in rows]),
-                               np.array([float(r["mean_level"]) for r in rows])))
-            n = min(len(c[0]) for c in curves)
-            ax.plot(curves[0][0][:n], np.mean([c[1][:n] for c in curves], axis=0), label=s)
-        ax.set(title=f"{t}: e2e MLP on uniform D2", xlabel="control steps", ylabel="mean training level")
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-# ----------------------------------------------------------------------------------------------------------
-# 8. Command line
-# ----------------------------------------------------------------------------------------------------------
-def _ballu_sampler(name: str):
-    import ballu
-    named = {"baseline": ballu.BASELINE, "d2c": [0.45, 0.45, 0.81, 0.0505]}   # d2c: the centre of D2
-    if name in named:
-        return ballu.FixedDesign(named[name])
-    if name == "d2":
-        return ballu.UniformDesign(ballu.d2())
-    return ballu.FixedDesign([float(v) for v in name.split(",")])
-
-
-def _levels_arg(text: str):
-    """--start-level: a name of ballu.START_LEVEL_NAMES ("task": ballu.train_start_levels, "spread",
-    "zero"), "L" or "LOW:HIGH", levels in 0..74 (ballu.MAX_LEVEL), LOW <= HIGH."""
-    import ballu
-    if text in ballu.START_LEVEL_NAMES:
-        return text
-    lo, sep, hi = text.partition(":")
-    try:
-        lv = (int(lo), int(hi)) if sep else (int(lo),)
-    except ValueError:
-        lv = ()
-    if not lv or min(lv) < 0 or max(lv) > ballu.MAX_LEVEL or lv[0] > lv[-1]:
-        raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(ballu.START_LEVEL_NAMES)}, a "
-                                         f"level or LOW:HIGH with 0 <= LOW <= HIGH <= {ballu.MAX_LEVEL}")
-    return lv if sep else lv[0]
-
-
-def _main(argv=None):
-    import ballu
-    ap = argparse.ArgumentParser(description="PPO on BALLU")
-    ap.add_argument("--train", metavar="OUT_DIR", help="train a policy; checkpoint, CSV and curve go here")
-    ap.add_argument("--bench", action="store_true", help="env-only vs end-to-end training rate")
-    ap.add_argument("--task", default="obstacle", choices=ballu.TASKS)
-    ap.add_argument("--design", default="baseline", help="baseline | d2c | d2 (uniform) | l_f,l_t,gcr,spcf")
-    ap.add_argument("--kind", default="mlp", choices=tuple(POLICIES))
-    ap.add_argument("--steps", type=int, default=1_000_000, help="control steps")
-    ap.add_argument("--envs", type=int, default=PPOConfig.num_envs)
-    ap.add_argument("--rollout", type=int, default=PPOConfig.num_steps)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--start-level", type=_levels_arg, default="task",
-                    help="training curriculum start: 'task' (default: the task's, ballu.train_start_levels: "
-                         "spread on the ramp, 0 on the obstacle), 'spread' (each lane at a uniform level up to "
-                         "the score's start level), a level, or LOW:HIGH per lane")
-    ap.add_argument("--reward", default="paper", choices=("paper", "code"))
-    ap.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
-    ap.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
-    ap.add_argument("--entropy", type=float, default=PPOConfig.entropy_coef, help="entropy bonus coefficient")
-    ap.add_argument("--strip", metavar="PNG", help="motion strip of one episode of --policy (ballu.motion_strip)")
-    ap.add_argument("--policy", metavar="CKPT", help="a checkpoint of this trainer, for --strip")
-    ap.add_argument("--level", type=int, default=30, help="terrain level of the --strip episode")
-    ap.add_argument("--protocol", metavar="OUT_DIR", help="compare PPO settings by the fixed protocol (issue 16)")
-    ap.add_argument("--settings", default="before", help=f"comma list of {sorted(PROTOCOL_SETTINGS)}")
-    ap.add_argument("--tasks", default="obstacle,ramp", help="protocol tasks, comma list")
-    ap.add_argument("--seeds", default="0,1,2", help="protocol seeds, comma list")
-    ap.add_argument("--milestones", default="1000000,2000000", help="protocol: control steps at which J is scored")
-    ap.add_argument("--rescore", action="store_true", help="protocol: score again on this CPU model the results "
-                    "scored on another (J differs between CPU models), and table this machine's scores")
-    ap.add_argument("--table", default="protocol", help="protocol: the table's name (NAME.md, NAME_curves.png)")
-    args = ap.parse_args(argv)
-    checks = (("--steps", args.steps, ">= 1", args.steps >= 1),
-              ("--envs", args.envs, ">= 1", args.envs >= 1),
-              ("--rollout", args.rollout, ">= 1", args.rollout >= 1),
-              ("--workers", args.workers, f"in [1, --envs {args.envs}]", 1 <= args.workers <= args.envs),
-              ("--seed", args.seed, "in [0, 2**64 - 1]", 0 <= args.seed < 2 ** 64),
-              ("--entropy", args.entropy, "finite and >= 0", 0 <= args.entropy < math.inf),
-              ("--init-mean", args.init_mean, "finite", abs(args.init_mean) < math.inf))   # NaN fails them all
-    for opt, value, rule, ok in checks:
-        if not ok:
-            ap.error(f"{opt} {value} must be {rule}")
-    cfg = PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean,
-                    entropy_coef=args.entropy)
-    bcfg = ballu.BalluConfig(task=args.task, reward_form=args.reward)
-    if args.strip:
-        if not args.policy:
-            ap.error("--strip needs --policy CKPT (the pump gait's strip: python ballu.py --strip PNG)")
-        if not 0 <= args.level <= ballu.MAX_LEVEL:
-            ap.error(f"--level {args.level} must lie in [0, {ballu.MAX_LEVEL}]")
-        design = _ballu_sampler(args.design)(np.random.default_rng(0), 1)[0]
-        print("wrote", ballu.motion_strip(args.strip, load_policy(args.policy), args.task, args.level, design))
-    if args.protocol:
-        settings, tasks = args.settings.split(","), args.tasks.split(",")
-        for name, values, allowed in (("--settings", settings, PROTOCOL_SETTINGS), ("--tasks", tasks, ballu.TASKS)):
-            if not set(values) <= set(allowed):
-                ap.error(f"{name} {','.join(values)}: each must be one of {sorted(allowed)}")
-        try:
-            seeds = [int(v) for v in args.seeds.split(",")]
-            milestones = sorted(int(v) for v in args.milestones.split(","))
-        except ValueError:
-            ap.error("--seeds and --milestones must be comma lists of integers")
-        if min(seeds) < 0 or milestones[0] < 1:
-            ap.error("--seeds must be >= 0 and --milestones >= 1")
-        if not args.table or os.sep in args.table:
-            ap.error(f"--table {args.table!r} must be a plain file name (no {os.sep!r})")
-        print(protocol(args.protocol, settings, tasks, seeds, milestones, workers=args.workers,
-                       base_cfg=PPOConfig(num_envs=args.envs, num_steps=args.rollout), rescore=args.rescore,
-                       table=args.table))
-    if args.bench:
-        bench(cfg, bcfg, args.workers)
-    if args.train:
-        os.makedirs(args.train, exist_ok=True)
-        sampler = _ballu_sampler(args.design)
-        env = ballu.make_env(cfg.num_envs, args.workers, bcfg)
-        ck = os.path.join(args.train, "policy.pt")
-        start = ballu.named_start_levels(args.start_level, args.task)
-        try:
-            out = train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed, start_level=start,
-                        log_csv=os.path.join(args.train, "log.csv"))
-        finally:
-            env.close()
-        plot_learning_curve(os.path.join(args.train, "log.csv"), os.path.join(args.train, "curve.png"),
-                            f"{args.kind} {args.task} {args.design}")
-        print("trained:", out)
-        if args.score:
-            designs = sampler(np.random.default_rng(123), 8 if args.design == "d2" else 1)
-            s = ballu.score(load_policy(ck), designs, args.task, workers=args.workers)
-            print(f"J = {s.round(2).tolist()} (mean {s.mean():.2f})")
-
-
 def _random_steps(env, T, mean, std, seed):
     """The env-only reference: T steps with N(mean, std) actions, run where the env lives (no policy)."""
     rng = np.random.default_rng(seed)
@@ -970,7 +634,7 @@ def _random_steps(env, T, mean, std, seed):
         env.step(rng.normal(mean, std, (env.num_envs, env.act_dim)))
 
 
-def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
+def bench(make_env, cfg: PPOConfig = PPOConfig(), workers: int = 2, iters: int = 30):
     """Env-only control steps/s (fixed random policy) vs end-to-end PPO training, same env layout.
 
     This VM's speed drifts by +-20 % within minutes, so the two are measured in alternation: after every PPO
@@ -979,10 +643,8 @@ def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
     trip to this process (the fastest the env can be stepped; the difference is the policy and the update
     alone). The ratio is the median over these pairs."""
     import tempfile
-    import ballu
-    sampler = ballu.FixedDesign(ballu.BASELINE)
-    env, ref = ballu.make_env(cfg.num_envs, workers, bcfg), ballu.make_env(cfg.num_envs, workers, bcfg)
-    ref.reset(seed=0, options={"design_sampler": sampler, "levels": 0})
+    env, ref = make_env(cfg.num_envs, workers), make_env(cfg.num_envs, workers)
+    ref.reset(seed=0)
     n, pairs, mark = cfg.num_steps * cfg.num_envs, [], [0.0]
 
     def env_only_chunk(_msg):
@@ -999,7 +661,7 @@ def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
     try:
         with tempfile.TemporaryDirectory() as d:
             mark[0] = time.time()
-            train("mlp", env, sampler, n * (iters + 1), os.path.join(d, "p.pt"), cfg, progress=env_only_chunk)
+            train("mlp", env, None, n * (iters + 1), os.path.join(d, "p.pt"), cfg, progress=env_only_chunk)
     finally:
         env.close()
         ref.close()
@@ -1011,6 +673,31 @@ def bench(cfg: PPOConfig, bcfg, workers: int = 2, iters: int = 30):
           f"{100 * np.median(ratio):.0f} % of env only; quartiles {100 * np.quantile(ratio, 0.25):.0f}-"
           f"{100 * np.quantile(ratio, 0.75):.0f} %)")
     return float(np.median(env_rate)), float(np.median(train_rate)), float(np.median(ratio))
+
+
+def _main(argv=None):
+    """`python ppo.py --bench`: PPO's own cost on a batched env, next to stepping that env alone. The env comes
+    from a module named on the command line (default: ballu, the robot of the paper), which must offer
+    make_env(num_envs, workers); this module imports no env of its own."""
+    import importlib
+    ap = argparse.ArgumentParser(description="PPO from scratch: benchmark (the library itself has no other mode)")
+    ap.add_argument("--bench", action="store_true", help="env-only vs end-to-end training rate")
+    ap.add_argument("--env", default="ballu", help="module offering make_env(num_envs, workers) (default ballu)")
+    ap.add_argument("--workers", type=int, default=2, help="env worker processes (1..--envs)")
+    ap.add_argument("--envs", type=int, default=PPOConfig.num_envs, help="parallel envs (>= 1)")
+    ap.add_argument("--iters", type=int, default=30, help="PPO iterations timed (>= 2)")
+    args = ap.parse_args(argv)
+    if not args.bench:
+        ap.error("nothing to do: use --bench (train on BALLU with run_all.py or python -m experiments.ppo_ballu)")
+    for opt, value, ok in (("--envs", args.envs, args.envs >= 1), ("--iters", args.iters, args.iters >= 2),
+                           ("--workers", args.workers, 1 <= args.workers <= args.envs)):
+        if not ok:
+            ap.error(f"{opt} {value} must be " + {"--envs": ">= 1", "--iters": ">= 2"}.get(opt, "in [1, --envs]"))
+    try:
+        make_env = importlib.import_module(args.env).make_env
+    except (ImportError, AttributeError) as e:
+        ap.error(f"--env {args.env}: not a module offering make_env(num_envs, workers) ({e})")
+    bench(make_env, PPOConfig(num_envs=args.envs), args.workers, args.iters)
 
 
 if __name__ == "__main__":

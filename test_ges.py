@@ -27,13 +27,14 @@ import ballu
 import ges
 import ppo
 import run_all
+from experiments import ballu_capability, ppo_ballu, ppo_protocol
 from ballu import BASELINE, BalluConfig, BalluEnv
 from tpe import TPE, Parzen, TPEConfig, bandwidths, build_parzen, n_good, optimize, recency_weights
 
 # ==========================================================================================================
 # ballu.py: physics sanity, lanes, determinism, curriculum, bad input
 # ==========================================================================================================
-D_MID = np.array([0.45, 0.45, 0.81, 0.0505])     # centre of D2
+D_MID = ballu.D2_CENTRE
 
 
 def robot_com(env, i=0):
@@ -47,7 +48,7 @@ def robot_com(env, i=0):
 
 
 def test_ballu_mass_matches_facts():
-    # ballu_facts.md: total mass 0.198 kg (0.480/0.443), 0.185 kg (0.286/0.215); balloon about 0.095 kg
+    # docs/facts.md: total mass 0.198 kg (0.480/0.443), 0.185 kg (0.286/0.215); balloon about 0.095 kg
     for lf, lt, m in ((0.480, 0.443, 0.198), (0.286, 0.215, 0.185)):
         assert ballu.mass_properties([lf, lt, 0.8, 0.01])["total"] == pytest.approx(m, abs=0.0015)
     assert ballu.mass_properties(BASELINE)["balloon"][0] == pytest.approx(0.095, abs=0.001)
@@ -123,7 +124,7 @@ def test_ballu_larger_gcr_settles_higher_on_bent_knees():
 
 
 def reference_knee_torque(q, qd, q_star, k):
-    """Independent transcription of ballu_facts.md's knee law (D term on the velocity clipped to +-7.48;
+    """Independent transcription of docs/facts.md's knee law (D term on the velocity clipped to +-7.48;
     spring preload 72.35 deg)."""
     spring = -2 * k * (q + 72.35 * math.pi / 180) - 0.001 * qd
     pd = max(0.0, 1.0 * (q_star - q) + 0.08 * float(np.clip(-qd, -7.48, 7.48)))
@@ -428,8 +429,8 @@ def test_ballu_quirk_torque_rotates_with_the_balloon_and_rights_it():
 
 def test_ballu_random_open_loop_rollouts_are_stable_and_hold_joint_limits():
     """Random piecewise-constant actions (bang-bang included) on random D3 designs and the baseline, with the
-    default instant knee target: no blow-up, no joint more than 0.05 rad past its limit (issue 14)."""
-    out = ballu.stability_audit(episodes=16, steps=160, seed=3)
+    default instant knee target: no blow-up, no joint more than 0.05 rad past its limit."""
+    out = ballu_capability.stability_audit(episodes=16, steps=160, seed=3)
     assert not out["blowup"].any()
     assert out["limit_excess"].max() <= 0.05, out["limit_excess"].max()
 
@@ -483,12 +484,12 @@ def test_ballu_energy_audit_finds_no_energy_created():
     (`python ballu.py --audit 200`). The audit itself must be accurate: in free flight, away from every limit
     and contact, the balance stays within 1 % of the work done (measured 0.3 %, halving with the time step:
     the integrator's own error), both ways, so a missing or wrong work term shows."""
-    out = ballu.stability_audit(episodes=16, steps=160, seed=4)
+    out = ballu_capability.stability_audit(episodes=16, steps=160, seed=4)
     assert out["energy_rise"].max() <= ENERGY_TOL, out["energy_rise"].max()
     cfg = replace(BalluConfig(), start_z=3.0, episode_steps=1000)
     env = BalluEnv(2, cfg, curriculum=False)
     env.reset(seed=0, options={"designs": [[0.45, 0.45, 0.9, 0.05], [0.3, 0.3, 0.85, 0.01]]})
-    mon = env.monitor = ballu.EnergyAudit(env)
+    mon = env.monitor = ballu_capability.EnergyAudit(env)
     trace = []
     for a in np.random.default_rng(0).uniform(0.25, 0.75, (20, 2, 2)):
         env.step(a)
@@ -503,11 +504,11 @@ def test_ballu_energy_audit_finds_no_energy_created():
 def test_ballu_capability_gaits_and_clearance_measure():
     """The capability search's gait family holds the pump gaits exactly, and a standing robot's peak toe
     clearance is ~0: the spawn drop (feet 0.2-0.3 m up at t = 0) does not count as a jump."""
-    acts = ballu.gait_actions(ballu.PUMP_GAITS, 60)
+    acts = ballu_capability.gait_actions(ballu_capability.PUMP_GAITS, 60)
     for k, (period, mode) in enumerate([(p, m) for m in ("sync", "alternate") for p in range(4, 41, 4)]):
         pump = ballu.PumpGait(period, mode)
         np.testing.assert_array_equal(acts[k], [pump(np.zeros((1, 1)))[0] for _ in range(60)])
-    out = ballu.play_open_loop(BASELINE, np.zeros((1, 40, 2)))
+    out = ballu_capability.play_open_loop(BASELINE, np.zeros((1, 40, 2)))
     assert out["peak_clearance"][0] < 0.02 and not out["blowup"][0]
 
 
@@ -631,7 +632,7 @@ def test_ppo_solves_a_point_mass(tmp_path):
 
 
 def test_ppo_adaptive_kl_rate_is_clamped_at_max_lr(tmp_path):
-    """PPOConfig.max_lr caps the adaptive-KL rate (issue 16: 1e-3, the facts 1e-2): on the point mass the KL
+    """PPOConfig.max_lr caps the adaptive-KL rate (ours 1e-3, the facts 1e-2): on the point mass the KL
     stays small, so the rate grows x1.5 per minibatch until it meets the cap, and never passes it."""
     cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=1e-4, max_lr=2e-4)
     log = str(tmp_path / "pm.csv")
@@ -764,11 +765,12 @@ class SplitPointMass(JoinedPointMass):
 def test_ppo_start_level_argument_errors_name_the_range(text):
     import argparse
     with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
-        ppo._levels_arg(text)
-    assert ppo._levels_arg("3:9") == (3, 9) and ppo._levels_arg("7") == 7 and ppo._levels_arg("5:5") == (5, 5)
-    assert ppo._levels_arg("spread") == "spread" and ppo._levels_arg("task") == "task"
+        ppo_ballu.start_levels(text)
+    assert ppo_ballu.start_levels("3:9") == (3, 9) and ppo_ballu.start_levels("7") == 7
+    assert ppo_ballu.start_levels("5:5") == (5, 5)
+    assert ppo_ballu.start_levels("spread") == "spread" and ppo_ballu.start_levels("task") == "task"
     assert ballu.spread_start_levels("obstacle") == (0, 28) and ballu.spread_start_levels("ramp", 2) == (0, 2)
-    # the measured per-task default (issue 16): spread on the ramp, level 0 on the obstacle
+    # the measured per-task default (docs/ppo_protocol): spread on the ramp, level 0 on the obstacle
     assert ballu.train_start_levels("ramp") == (0, 40) and ballu.train_start_levels("obstacle") == 0
     assert run_all.start_levels("ramp", run_all.SMOKE) == (0, 2) and run_all.start_levels("obstacle", run_all.QUICK) == 0
 
@@ -867,7 +869,7 @@ def test_ballu_score_reuse_replays_known_levels_exactly(monkeypatch):
         return step_simulation(*args, **kw)
 
     monkeypatch.setattr(ballu.pybullet, "stepSimulation", counted)
-    designs = np.array([ballu.BASELINE, [0.45, 0.45, 0.81, 0.0505]])
+    designs = np.array([ballu.BASELINE, ballu.D2_CENTRE])
     for task, start, episodes in (("obstacle", 6, 5), ("ramp", 2, 5)):
         out, cost = {}, {}
         for reuse in (False, True):
@@ -907,41 +909,48 @@ def test_ballu_score_of_a_design_does_not_depend_on_its_call_mates():
                                        (["--rollout", "0"], "--rollout 0 must be >= 1"),
                                        (["--seed", "-1"], "--seed -1 must be in [0, 2**64 - 1]"),
                                        (["--entropy", "nan"], "--entropy nan must be finite"),
-                                       (["--init-mean", "inf"], "--init-mean inf must be finite")])
+                                       (["--init-mean", "inf"], "--init-mean inf must be finite"),
+                                       (["--design", "foo"], "--design 'foo' must be baseline, d2c, d2 or four"),
+                                       (["--design", "1,2"], "--design '1,2' must be baseline, d2c, d2 or four"),
+                                       (["--design", "0.45,0.45,nan,0.01"], "--design: gcr=nan is outside"),
+                                       (["--design", "2,2,2,2"], "--design: l_f=2.0 is outside [0.05, 1.0]")])
 def test_ppo_command_line_rejects_out_of_range_numbers(argv, msg, tmp_path, capsys):
+    """experiments.ppo_ballu train: one line naming the option and its range, and nothing written."""
     with pytest.raises(SystemExit) as e:
-        ppo._main(["--train", str(tmp_path / "out"), *argv])
+        ppo_ballu.main(["train", str(tmp_path / "out"), *argv])
     assert e.value.code == 2 and msg in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 
 def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
-    """The issue-16 protocol on a tiny budget: a row per setting and task with mean +- SE over seeds, the curve
-    figure, and a rerun that trains nothing (every milestone's result is kept)."""
+    """The PPO protocol on a tiny budget: a row per setting and task with mean +- SE over seeds, the curve
+    figure, a rerun that trains nothing (every milestone's result is kept), one copy of each checkpoint."""
     kw = dict(settings=("before",), tasks=("obstacle",), seeds=(0, 1), milestones=(128, 256), n_designs=2,
               episodes=1, workers=1, base_cfg=ppo.PPOConfig(num_envs=4, num_steps=16), progress=None)
-    text = ppo.protocol(str(tmp_path), **kw)
+    text = ppo_protocol.protocol(str(tmp_path), **kw)
     assert "| before | obstacle | " in text and "J at 256 steps" in text and " +- " in text
     assert (tmp_path / "protocol_curves.png").exists() and (tmp_path / "before/obstacle/seed1/result_256.json").exists()
-    stamp = os.path.getmtime(tmp_path / "before/obstacle/seed0/policy.pt")
-    assert ppo.protocol(str(tmp_path), **kw) == text
-    assert os.path.getmtime(tmp_path / "before/obstacle/seed0/policy.pt") == stamp
+    seed0 = tmp_path / "before/obstacle/seed0"
+    assert sorted(p.name for p in seed0.glob("*.pt")) == ["policy_128.pt", "policy_256.pt"]
+    stamp = os.path.getmtime(seed0 / "policy_256.pt")
+    assert ppo_protocol.protocol(str(tmp_path), **kw) == text
+    assert os.path.getmtime(seed0 / "policy_256.pt") == stamp
     with pytest.raises(ValueError, match="unknown"):
-        ppo.protocol(str(tmp_path), **dict(kw, settings=("nope",)))
+        ppo_protocol.protocol(str(tmp_path), **dict(kw, settings=("nope",)))
     # rescore: a result scored on another CPU model is scored again here from its milestone checkpoint, kept
     # beside the first score, and tabled in its place; here the same machine must give the same J
     path = tmp_path / "before/obstacle/seed1/result_256.json"
     res = json.loads(path.read_text())
     path.write_text(json.dumps({**res, "cpu": "another CPU", "mean_J": -1.0}))
-    assert "another CPU" in ppo.protocol(str(tmp_path), **kw)     # without rescore: the file's own score
-    again = ppo.protocol(str(tmp_path), **dict(kw, rescore=True, table="here"))
+    assert "another CPU" in ppo_protocol.protocol(str(tmp_path), **kw)     # without rescore: the file's own score
+    again = ppo_protocol.protocol(str(tmp_path), **dict(kw, rescore=True, table="here"))
     assert again == text + (f"Rescored here: 1 obstacle results first scored on another CPU; mean J moved "
                             f"{res['mean_J'] + 1:+.2f} on average, at most {abs(res['mean_J'] + 1):.2f}.\n")
     assert (tmp_path / "here.md").read_text() == again
     kept = json.loads(path.read_text())
-    assert kept["mean_J"] == -1.0 and kept["rescored"][ppo.cpu_model()]["J"] == res["J"]
+    assert kept["mean_J"] == -1.0 and kept["rescored"][ppo_protocol.cpu_model()]["J"] == res["J"]
     stamp = os.path.getmtime(path)
-    assert ppo.protocol(str(tmp_path), **dict(kw, rescore=True)) == again and os.path.getmtime(path) == stamp
+    assert ppo_protocol.protocol(str(tmp_path), **dict(kw, rescore=True)) == again and os.path.getmtime(path) == stamp
 
 
 def test_ppo_gaussian_log_prob_and_entropy_match_torch_normal():
