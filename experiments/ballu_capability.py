@@ -7,6 +7,7 @@
 
     python -m experiments.ballu_capability --audit 200      # a table per simulator setting (AUDIT_CONFIGS)
     python -m experiments.ballu_capability --capability     # designs x CAPABILITY_CONFIGS x 3 search seeds
+    python -m experiments.ballu_capability --floors         # J of the scripted floors (stand, pump gaits)
 
 Results and their reading: docs/capability/README.md. [ours] throughout: the paper and the facts are silent.
 """
@@ -20,8 +21,8 @@ from dataclasses import replace
 import numpy as np
 
 from ballu import (BALLOON, BASELINE, D2_CENTRE, HARDWARE_DRAG, JOINT_LIMITS, JOINTS, MAX_LEVEL, PREVIOUS_ROBOT,
-                   TABLE_I_HIGH, TABLE_I_LOW, BalluConfig, BalluEnv, InProcess, check_design, level_score,
-                   plain_call, shared_pool, surface_height, task_geometry, to_base_frame)
+                   TABLE_I_HIGH, TABLE_I_LOW, BalluConfig, BalluEnv, InProcess, PumpGait, check_design, level_score,
+                   plain_call, score, shared_pool, stand, surface_height, task_geometry, to_base_frame)
 
 def random_actions(rng, n: int, steps: int, hold=(1, 10)) -> np.ndarray:
     """Open-loop test actions (n, steps, 2): each leg holds a value for 1-10 control steps; half of the values
@@ -299,22 +300,46 @@ def capability_table(designs=("baseline", "paper optimum (gcr 0.88, spcf 0.008)"
             f"brackets; lower bounds on what a policy can do.\n\n" + "\n".join(rows))
 
 
+FLOOR_DESIGNS = ("baseline", "paper optimum (gcr 0.88, spcf 0.008)")
+
+
+def floors_table(designs=FLOOR_DESIGNS, workers: int = 2) -> str:
+    """`--floors`: the score J (20 episodes from level 28 / 40) of the scripted floors on each design and task:
+    `stand` (zero action) and the best of the 20 pump gaits (both knees together or alternating, periods
+    4, 8, ..., 40 control steps). A learned policy that scores no higher has learned nothing a script cannot do."""
+    gaits = [(p, m) for m in ("sync", "alternate") for p in range(4, 41, 4)]
+    rows = ["| design | task | stand | best pump gait | its period, mode |", "|---|---|---|---|---|"]
+    for name in designs:
+        d = np.array(CAPABILITY_DESIGNS[name])
+        for task in ("obstacle", "ramp"):
+            j_stand = float(score(stand, d[None], task, workers=1)[0])
+            pump = PumpGait([p for p, _ in gaits], [m for _, m in gaits])
+            j = score(pump, np.tile(d, (len(gaits), 1)), task, workers=workers)
+            k = int(np.argmax(j))
+            rows.append(f"| {name} | {task} | {j_stand:.1f} | {j[k]:.1f} | {gaits[k][0]}, {gaits[k][1]} |")
+            print(rows[-1], flush=True)
+    return "J in cm (obstacle) or deg (ramp).\n\n" + "\n".join(rows)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m experiments.ballu_capability", description=__doc__.splitlines()[0])
     ap.add_argument("--audit", type=int, metavar="EPISODES", help="random open-loop stability and energy audit")
     ap.add_argument("--capability", action="store_true", help="open-loop search: what the robot can do")
+    ap.add_argument("--floors", action="store_true", help="J of the scripted floors (stand, pump gaits)")
     ap.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
     args = ap.parse_args(argv)
     if args.audit is not None and args.audit < 1:
         ap.error(f"--audit {args.audit}: the number of episodes must be >= 1")
     if args.workers < 1:
         ap.error(f"--workers {args.workers} must be >= 1")
-    if not (args.audit or args.capability):
-        ap.error("nothing to do: give --audit EPISODES and/or --capability")
+    if not (args.audit or args.capability or args.floors):
+        ap.error("nothing to do: give --audit EPISODES, --capability and/or --floors")
     if args.audit:
         print(audit_table(args.audit, args.workers))
     if args.capability:
         print(capability_table(workers=args.workers))
+    if args.floors:
+        print(floors_table(workers=args.workers))
 
 
 if __name__ == "__main__":
