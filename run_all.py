@@ -548,6 +548,10 @@ def stage_json(path: str):
     return read_json(path)["result"]
 
 
+def score_set(path: str) -> np.ndarray:
+    return np.array(read_json(path)["scores"], dtype=float)
+
+
 def fmt_y(y) -> str:
     """A score J in a progress line (a failed trial's y is None)."""
     return "failed" if y is None else f"{y:.2f}"
@@ -864,7 +868,7 @@ def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
     """Score a set of designs once (`compute(trace)` -> scores, filling `trace` as score_policy does); kept in
     scores/<key>.json with each design's per-episode final pelvis x (a resumable unit)."""
     path = run.path("scores", f"{key}.json")
-    done = redo_if_damaged(path, lambda p: np.array(read_json(p)["scores"], dtype=float), part=f"score set {key}")
+    done = redo_if_damaged(path, score_set, part=f"score set {key}")
     if done is not None:
         return done
     trace = {}
@@ -1897,7 +1901,7 @@ def repair(run: Run) -> None:
         redo_if_damaged(run.path("stages", f"{name}.json"), stage_json, part=f"stage {name}")
     redo_if_damaged(run.path("stage_seconds.json"), part="the stage times from now on")
     for f in sorted(glob.glob(run.path("scores", "*.json"))):
-        redo_if_damaged(f, lambda p: np.array(read_json(p)["scores"], dtype=float), part="that score set when a stage needs it")
+        redo_if_damaged(f, score_set, part="that score set when a stage needs it")
     for f in sorted(glob.glob(run.path("tpe", "*.json"))):
         redo_if_damaged(f, tpe.read_study, "TPE study", part="that search when a stage needs it")
     for d in sorted(glob.glob(run.path("ges", "*", ""))):
