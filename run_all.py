@@ -97,7 +97,7 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
     moved aside and the policy retrained from scratch (redo_if_damaged)."""
     os.makedirs(folder, exist_ok=True)
     ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
-    have = redo_if_damaged(ckpt, ckpt_steps, "ppo.py checkpoint", f"policy {label or folder}") or 0
+    have = redo_if_damaged(ckpt, ckpt_steps, "ppo.py checkpoint", f"retraining policy {label or folder}") or 0
     if have >= steps:
         return ckpt
     if have:
@@ -527,7 +527,7 @@ def read_back(path: str, load=read_json, what: str = "JSON file", fix: str = FRE
         raise Damaged(f"{path} is damaged (not a readable {what}: {type(e).__name__}); {fix}") from None
 
 
-def redo_if_damaged(path: str, load=read_json, what: str = "JSON file", part: str = "its part"):
+def redo_if_damaged(path: str, load=read_json, what: str = "JSON file", part: str = "redoing its part"):
     """read_back of a file whose part the run can redo exactly (every number derives from --seed): a damaged one
     is moved aside to <path>.damaged with a warning and None returned, as for a missing file."""
     if not os.path.exists(path):
@@ -536,7 +536,7 @@ def redo_if_damaged(path: str, load=read_json, what: str = "JSON file", part: st
         return read_back(path, load, what)
     except Damaged as e:
         os.replace(path, path + ".damaged")
-        say(f"warning: {str(e).split(';')[0]}: moved aside to {os.path.basename(path)}.damaged, redoing {part}")
+        say(f"warning: {str(e).split(';')[0]}: moved aside to {os.path.basename(path)}.damaged; {part}")
         return None
 
 
@@ -690,13 +690,21 @@ def code_hash() -> str:
 def trim_log(csv_path: str, steps: int) -> None:
     """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
     resumed run's learning curve has no duplicated stretch."""
-    if not os.path.exists(csv_path):
+    rows = redo_if_damaged(csv_path, read_log_rows, "learning-curve CSV", "its curve restarts here")
+    if rows is None:
         return
-    with open(csv_path) as fh:
+    tmp = f"{csv_path}.tmp{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
+    os.replace(tmp, csv_path)
+
+
+def read_log_rows(path: str) -> list:
+    """A learning-curve CSV of ppo.train: its header and rows, each row's numbers checked."""
+    with open(path) as fh:
         rows = list(csv.reader(fh))
-    keep = rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps]
-    with open(csv_path, "w", newline="") as fh:
-        csv.writer(fh).writerows(keep)
+    [[float(v) for v in r] for r in rows[1:]]
+    return rows
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -813,7 +821,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
                            fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage)
     os.makedirs(run_dir, exist_ok=True)
     times_path = os.path.join(run_dir, "round_seconds.json")
-    times = redo_if_damaged(times_path, part="its round times from now on") or {}
+    times = redo_if_damaged(times_path, part="counting its round times from now on") or {}
     last = [time.time()]
 
     def on_round(msg: str):
@@ -868,7 +876,7 @@ def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
     """Score a set of designs once (`compute(trace)` -> scores, filling `trace` as score_policy does); kept in
     scores/<key>.json with each design's per-episode final pelvis x (a resumable unit)."""
     path = run.path("scores", f"{key}.json")
-    done = redo_if_damaged(path, score_set, part=f"score set {key}")
+    done = redo_if_damaged(path, score_set, part=f"redoing score set {key}")
     if done is not None:
         return done
     trace = {}
@@ -1373,8 +1381,9 @@ def fig_curves(logs: list, path: str, title: str) -> str:
     plt = _plt()
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
     for label, csv_paths in logs:
-        parts = [read_log(c) for c in csv_paths if os.path.exists(c) and os.path.getsize(c) > 0]
-        parts = [p for p in parts if len(p["steps"])]
+        parts = [redo_if_damaged(c, read_log, "learning-curve CSV", "its curve is left out") for c in csv_paths
+                 if os.path.exists(c) and os.path.getsize(c) > 0]
+        parts = [p for p in parts if p is not None and len(p["steps"])]
         if not parts:
             continue
         d = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -1746,7 +1755,7 @@ def report_claims(results: dict) -> list:
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
-    times = redo_if_damaged(run.path("stage_seconds.json"), part="the stage times from now on") or {}
+    times = redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on") or {}
     sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", report_ksens),
                 ("ges", report_ges_runs), ("cost", report_cost), ("figures", report_figures)]
@@ -1759,8 +1768,10 @@ def report(run: Run, manifest: dict) -> str:
     lines += ["## Wall time per stage (all attempts)", ""] + md_table(
         ["stage", "wall time"], [[n, f"{times[n]:.0f} s"] for n in STAGES if n in times])
     text = "\n".join(lines).rstrip("\n") + "\n"
-    with open(run.path("REPORT.md"), "w") as fh:
+    tmp = run.path(f"REPORT.md.tmp{os.getpid()}")   # atomic, as every write of a run
+    with open(tmp, "w") as fh:
         fh.write(text)
+    os.replace(tmp, run.path("REPORT.md"))
     write_json(run.path("results.json"), {"manifest": manifest, "stages": results, "stage_seconds": times})
     return text
 
@@ -1898,18 +1909,18 @@ def repair(run: Run) -> None:
     result, a score set, a TPE search, a standalone policy, timing records) is moved aside and redone, with a
     warning; a damaged GES run stops the run with a one-line error naming the file and what to do."""
     for name in STAGES:
-        redo_if_damaged(run.path("stages", f"{name}.json"), stage_json, part=f"stage {name}")
-    redo_if_damaged(run.path("stage_seconds.json"), part="the stage times from now on")
+        redo_if_damaged(run.path("stages", f"{name}.json"), stage_json, part=f"redoing stage {name}")
+    redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on")
     for f in sorted(glob.glob(run.path("scores", "*.json"))):
-        redo_if_damaged(f, score_set, part="that score set when a stage needs it")
+        redo_if_damaged(f, score_set, part="it is redone when a stage needs it")
     for f in sorted(glob.glob(run.path("tpe", "*.json"))):
-        redo_if_damaged(f, tpe.read_study, "TPE study", part="that search when a stage needs it")
+        redo_if_damaged(f, tpe.read_study, "TPE study", part="it is redone when a stage needs it")
     for d in sorted(glob.glob(run.path("ges", "*", ""))):
         if os.path.exists(os.path.join(d, ges.STATE_FILE)):
             for c in load_ges(d.rstrip(os.sep)).ckpt:
                 if c:
                     read_back(c, ckpt_steps, "ppo.py checkpoint", ges_fix(d.rstrip(os.sep)))
-        redo_if_damaged(os.path.join(d, "round_seconds.json"), part="its round times from now on")
+        redo_if_damaged(os.path.join(d, "round_seconds.json"), part="counting its round times from now on")
     if stage_result(run, "baselines"):   # a finished stage is skipped: retrain a damaged policy here
         for job in baseline_jobs(run):
             if not os.path.exists(policy_dir(run, job[0]) + "/policy.pt"):
@@ -1947,7 +1958,7 @@ def run_stage(run: Run, name: str) -> float:
         result = fn(run)
     finally:
         tp = run.path("stage_seconds.json")
-        times = redo_if_damaged(tp, part="the stage times from now on") or {}
+        times = redo_if_damaged(tp, part="counting the stage times from now on") or {}
         times[name] = times.get(name, 0.0) + time.time() - t0
         write_json(tp, times)
     write_json(path, {"stage": name, "result": result})
@@ -1955,14 +1966,17 @@ def run_stage(run: Run, name: str) -> float:
     return time.time() - t0
 
 
+ETA_PRIOR_S = 60.0   # the pace starts at 1 as if this much had run to plan: a stage of seconds says little
+
+
 def run_eta(planned: dict, ran: dict, left: list) -> str:
     """The whole run's ETA: plan()'s seconds of the stages left, scaled by the pace so far (seconds the stages run
-    in this call took / their planned seconds; 1 before any ran). Stages skipped as done count for neither."""
+    in this call took / their planned seconds, shrunk toward 1 by ETA_PRIOR_S). Skipped stages count for neither."""
     done_plan = sum(planned.get(s, 0.0) for s in ran)
-    pace = sum(ran.values()) / done_plan if done_plan > 0 else 1.0
+    pace = (sum(ran.values()) + ETA_PRIOR_S) / (done_plan + ETA_PRIOR_S)
     eta = pace * sum(planned.get(s, 0.0) for s in left)
-    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for stage(s) {left}" + (
-        f" (--plan's time x {pace:.2f}, the pace so far)" if ran else " (--plan's time)")) if left else ""
+    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left, " + (
+        f"--plan's time x {pace:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
 
 
 def main(argv=None) -> int:
