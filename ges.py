@@ -40,6 +40,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -842,7 +843,6 @@ def main(argv=None) -> int:
         return 0
     except (ValueError, OSError) as e:   # bad arguments, an unwritable folder, a run_dir of another run
         if made and os.path.isdir(made):
-            import shutil
             shutil.rmtree(made, ignore_errors=True)
         print(f"ges.py: error: {str(e).splitlines()[0]}", file=sys.stderr)
         return 2

@@ -1434,7 +1434,8 @@ def test_ges_bench_runs():
 
 
 DAMAGES = {"truncated": lambda b: b[:len(b) // 2], "random bytes": lambda b: bytes(range(256)) * 4,
-           "a JSON list": lambda b: b"[1, 2, 3]", "another format": lambda b: b'{"format": "optuna-v3", "trials": []}'}
+           "a JSON list": lambda b: b"[1, 2, 3]", "another format": lambda b: b'{"format": "optuna-v3", "trials": []}',
+           "a pickle": lambda b: pickle.dumps({"policy": object})}   # torch would advise weights_only=False
 
 
 @pytest.mark.parametrize("damage", list(DAMAGES))
@@ -1816,7 +1817,7 @@ def test_tpe_suggestions_stay_in_bounds(multivariate):
     assert X.shape == (40, 4) and np.all(X >= lows) and np.all(X <= highs)
 
 
-@pytest.mark.parametrize("damage", ["truncated", "random bytes", "a JSON list", "another format"])
+@pytest.mark.parametrize("damage", list(DAMAGES))
 def test_tpe_damaged_study_file_names_the_file_and_what_to_do(tmp_path, damage):
     """A study file that is truncated, garbage (not UTF-8) or of another format: one ValueError naming the file and
     saying to delete it, not a JSON / Unicode / AttributeError traceback."""
@@ -2298,7 +2299,9 @@ def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
                             (os.path.join(ges_dir, "state.json"), "random bytes",
                              ["state.json is damaged (not a readable GES state", "delete the folder", ges_dir]),
                             (os.path.join(ges_dir, "ckpt", "spec1_round01.ckpt"), "truncated",
-                             ["spec1_round01.ckpt is damaged (not a readable ppo.py checkpoint", "--fresh"])):
+                             ["spec1_round01.ckpt is damaged (not a readable ppo.py checkpoint", "--fresh"]),
+                            (os.path.join(ges_dir, "ckpt", "spec0_round01.ckpt"), "a pickle",
+                             ["spec0_round01.ckpt is damaged (not a readable ppo.py checkpoint", "--fresh"])):
         path, data = damage(rel, how)
         assert run_all.main(args) == 2, rel
         err = capsys.readouterr().err
