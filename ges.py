@@ -40,6 +40,8 @@ import argparse
 import json
 import math
 import os
+import shutil
+import sys
 import tempfile
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
@@ -417,12 +419,25 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
     return state
 
 
-def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> dict | None:
+def _read_state(run_dir: str) -> dict:
+    """state.json of run_dir, checked: ValueError naming the file and what to do if it is truncated, garbage or
+    not a GES state, instead of a JSON / Unicode / KeyError traceback."""
     path = os.path.join(run_dir, STATE_FILE)
-    if not os.path.exists(path):
+    try:
+        with open(path) as fh:
+            state = json.load(fh)
+        Box.from_dict(state["space"]), GESConfig(**state["config"])
+        np.array(state["mu"], dtype=float), state["round"], state["history"][-1]["coverage"], state["seed"]
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as e:
+        raise ValueError(f"{path} is not a readable GES state ({type(e).__name__}); delete {run_dir} to start "
+                         f"that GES run over") from None
+    return state
+
+
+def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> dict | None:
+    if not os.path.exists(os.path.join(run_dir, STATE_FILE)):
         return None
-    with open(path) as fh:
-        state = json.load(fh)
+    state = _read_state(run_dir)
     for what, saved, now in (("space", Box.from_dict(state["space"]).to_dict(), space.to_dict()), ("config", state["config"],
                              asdict(config)), ("seed", state["seed"], seed)):
         if saved != now:
@@ -470,8 +485,7 @@ def _result(run_dir, space, config, seed, state) -> GESResult:
 
 def load_result(run_dir: str) -> GESResult:
     """Rebuild the GESResult of a (finished or interrupted) run from its state.json."""
-    with open(os.path.join(run_dir, STATE_FILE)) as fh:
-        state = json.load(fh)
+    state = _read_state(run_dir)
     space = Box.from_dict(state["space"])
     return _result(run_dir, space, GESConfig(**state["config"]), state["seed"], state)
 
@@ -634,8 +648,8 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
                 ax.plot(trail[:, i], trail[:, j], "-", color=col, lw=0.8, alpha=0.7)
                 ax.plot(mu[i], mu[j], "o", color=col, mec="k", ms=6)
                 won = np.array(h["winner"]) == k
-                if won.any():
-                    ax.plot(probes[won, i], probes[won, j], ".", color=col, ms=3.5, alpha=0.9)
+                if won.any():   # black-edged, above the ellipses: a probe is one point, it must stand out
+                    ax.plot(probes[won, i], probes[won, j], "D", color=col, ms=4.5, mec="k", mew=0.6, zorder=4)
             ax.set_xlim(lo[i], hi[i])
             ax.set_ylim(lo[j], hi[j])
             ax.set_xlabel(space.names[i])
@@ -646,7 +660,7 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
     ax = axes[0, -1]
     ax.axis("on")
     t = [h["round"] for h in rounds]
-    ax.plot(t, [100 * h["coverage"] for h in rounds], "k.-", label="MC coverage")
+    ax.plot(t, [100 * h["coverage"] for h in rounds], "k.-", label="MC coverage", zorder=3)   # above the bars
     ax.axhline(100 * history["config"]["target_coverage"], color="gray", ls="--", lw=1, label="target")
     wins = np.array([h["wins"] for h in rounds])
     bottom = np.zeros(len(t))
@@ -656,15 +670,16 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
                label=f"specialist {k} wins")
         bottom += share
     ax.set_ylim(0, 105)
+    ax.set_xticks(t)
     ax.set_xlabel("round")
     ax.set_ylabel("coverage %  /  share of probes won")
     ax.set_title("coverage and wins per round", fontsize=10)
     handles, labels = ax.get_legend_handles_labels()
     if len(pairs) > 1:  # 3-D: the legend gets its own (otherwise empty) cell
         axes[1, -1].legend(handles, labels, loc="center", fontsize=9)
-    else:
-        ax.legend(handles, labels, fontsize=7, loc="lower right", framealpha=0.9)
-    fig.suptitle(f"GES territories (2-sigma ellipses, dots: probes won this round), K={K}, d={d}"
+    else:   # 2-D: below the panel, where it covers neither the coverage line nor the bars
+        ax.legend(handles, labels, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
+    fig.suptitle(f"GES territories (2-sigma ellipses, diamonds: probes won this round), K={K}, d={d}"
                  + ("; grey/dashed: planted regions" if background is not None and d == 2 else ""))
     fig.savefig(path, dpi=110)
     return path
@@ -786,21 +801,52 @@ def bench() -> dict:
     return t
 
 
-if __name__ == "__main__":
+def main(argv=None) -> int:
+    """The command line; a bad argument is one line naming it and its allowed values (exit 2), checked before
+    anything is written; a failed --demo leaves no folder it created behind."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bench", action="store_true", help="time coverage and routing")
     ap.add_argument("--demo", metavar="OUT_DIR", help="run the synthetic landscape, write territories.png")
     ap.add_argument("--sweep", action="store_true", help="rounds to 95 %% coverage per (n_init, F), planted "
                     "landscape, seeds 0-2")
     ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--workers", type=int, default=1, help="demo: >1 uses a ProcessPoolExecutor")
-    args = ap.parse_args()
-    if args.bench:
-        bench()
-    if args.demo:
-        demo(args.demo, args.dim, args.seed, args.workers)
-    if args.sweep:
-        sweep()
-    if not (args.bench or args.demo or args.sweep):
-        ap.print_help()
+    ap.add_argument("--seed", type=int, default=0, help="demo: an integer >= 0")
+    ap.add_argument("--workers", type=int, default=1, help="demo: processes, >= 1 (>1 uses a ProcessPoolExecutor)")
+    args = ap.parse_args(argv)
+    made = None
+    try:
+        if args.seed < 0:
+            raise ValueError(f"--seed {args.seed} must be an integer >= 0")
+        if args.workers < 1:
+            raise ValueError(f"--workers {args.workers} must be an integer >= 1")
+        if args.demo is not None:
+            if not args.demo.strip():
+                raise ValueError("--demo needs a folder name")
+            out = os.path.abspath(args.demo)
+            if os.path.exists(out) and not os.path.isdir(out):
+                raise ValueError(f"--demo {args.demo} exists and is not a folder")
+            made = None if os.path.exists(out) else out
+            try:
+                os.makedirs(out, exist_ok=True)
+                if not os.access(out, os.W_OK):
+                    raise PermissionError("read-only")
+            except OSError as e:
+                raise OSError(f"--demo {args.demo}: cannot write there ({e.strerror or e})") from None
+        if args.bench:
+            bench()
+        if args.demo is not None:
+            demo(args.demo, args.dim, args.seed, args.workers)
+        if args.sweep:
+            sweep()
+        if not (args.bench or args.demo is not None or args.sweep):
+            ap.print_help()
+        return 0
+    except (ValueError, OSError) as e:   # bad arguments, an unwritable folder, a run_dir of another run
+        if made and os.path.isdir(made):
+            shutil.rmtree(made, ignore_errors=True)
+        print(f"ges.py: error: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

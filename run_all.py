@@ -28,7 +28,8 @@ Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to 
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
 policies/, ges/, tpe/, stages/). Every stage writes its artifacts when it finishes and long stages checkpoint
 inside (PPO via ppo.train's checkpoint, GES via run_ges's run_dir, TPE via its study file), so a rerun skips
-finished work; --fresh starts over. All randomness derives from --seed.
+finished work; --fresh starts over. All randomness derives from --seed, so a rerun that finds a damaged work file
+redoes its part with the same numbers (repair; a damaged GES run or manifest is a one-line error instead).
 
 What "ours" means: numbers this run measured with ballu.py (PyBullet, not Isaac Lab), ppo.py, ges.py and
 tpe.py under the preset's budgets, which are far below the paper's except in the `paper` preset.
@@ -37,15 +38,18 @@ from __future__ import annotations
 
 import argparse
 import csv
+import glob
 import hashlib
 import json
 import math
 import multiprocessing as mp
 import os
+import re
 import shutil
 import subprocess
 import sys
 import time
+import warnings
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -91,10 +95,11 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
     """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
 
     A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates): that continuation
-    restarts episodes, so it is close to, not bit-identical with, an uninterrupted run."""
+    restarts episodes, so it is close to, not bit-identical with, an uninterrupted run. A damaged checkpoint is
+    moved aside and the policy retrained from scratch (redo_if_damaged)."""
     os.makedirs(folder, exist_ok=True)
     ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
-    have = ppo.load_checkpoint(ckpt)["steps"] if os.path.exists(ckpt) else 0
+    have = redo_if_damaged(ckpt, ckpt_steps, "ppo.py checkpoint", f"retraining policy {label or folder}") or 0
     if have >= steps:
         return ckpt
     if have:
@@ -130,7 +135,7 @@ class TrainSpecialist:
             if os.path.exists(f):
                 os.remove(f)
         cfg = ppo_config(self.preset)
-        base = ppo.load_checkpoint(self.warm_ckpt)["steps"] if self.warm_ckpt else 0
+        base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
             ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + (round + 1) * self.round_steps,
@@ -176,7 +181,7 @@ class ScoreSpecialist:
     trace: dict | None = None   # see score_policy (in-process callers only)
 
     def __call__(self, k, ckpt, designs):
-        return score_policy(ppo.load_policy(ckpt), self.space.full(designs), self.task, self.preset, self.workers,
+        return score_policy(load_ges_ckpt(ckpt), self.space.full(designs), self.task, self.preset, self.workers,
                             f"{self.label} specialist {k}" if self.label else "", self.probe, self.trace)
 
 
@@ -201,21 +206,38 @@ def ges_J(run_dir: str, task: str, space: ballu.DesignSpace, preset: Preset, wor
           label: str = "", trace: dict | None = None) -> ges.RoutedEvaluator:
     """J(theta) of GES (paper Sec. IV-C): the density router (eq. 10) hands each design to the specialist whose
     Gaussian is densest there, and that specialist plays it (the paper's J, never the probe schedule)."""
-    return ges.routed_evaluator(ges.load_result(run_dir), ScoreSpecialist(task, space, preset, workers, label,
-                                                                          trace=trace))
+    res = load_ges(run_dir)
+    for c in res.ckpt:   # each specialist read back once here: TPE would count a damaged one as failed trials
+        load_ges_ckpt(c)
+    return ges.routed_evaluator(res, ScoreSpecialist(task, space, preset, workers, label, trace=trace))
+
+
+def ges_fix(run_dir: str) -> str:
+    """What to do about a damaged file of a GES run: its rounds cannot be redone alone."""
+    return (f"{FRESH}, or delete the folder {run_dir} and the stages/*.json of ges and every later stage to "
+            f"redo only that GES run (all other work files are reused)")
+
+
+def load_ges(run_dir: str) -> ges.GESResult:
+    return read_back(os.path.join(run_dir, ges.STATE_FILE), lambda p: ges.load_result(run_dir), "GES state",
+                     ges_fix(run_dir))
+
+
+def load_ges_ckpt(ckpt: str):
+    """A GES specialist's policy (ckpt inside <run_dir>/ckpt/)."""
+    return read_back(ckpt, ppo.load_policy, "ppo.py checkpoint", ges_fix(os.path.dirname(os.path.dirname(ckpt))))
 
 
 def ges_specialist(run_dir: str, theta):
     """The policy of the specialist the router (eq. 10) picks for one design theta (the space's coordinates)."""
-    res = ges.load_result(run_dir)
-    return ppo.load_policy(res.ckpt[int(res.route(theta)[0])])
+    res = load_ges(run_dir)
+    return load_ges_ckpt(res.ckpt[int(res.route(theta)[0])])
 
 
 def load_policy(run: Run, method: str, task: str, sp: str):
     """The policy of a single-policy method ('baseline' = the baseline design's own policy, 'mlp', 'moe')."""
-    if method == "baseline":
-        return ppo.load_policy(run.path("policies", f"baseline-{task}", "policy.pt"))
-    return ppo.load_policy(run.path("policies", f"{method}-{task}-{sp}", "policy.pt"))
+    name = f"baseline-{task}" if method == "baseline" else f"{method}-{task}-{sp}"
+    return read_back(run.path("policies", name, "policy.pt"), ppo.load_policy, "ppo.py checkpoint")
 
 
 def method_J(run: Run, method: str, task: str, sp: str, label: str = "", trace: dict | None = None):
@@ -369,12 +391,20 @@ def played_share(preset: Preset) -> float:
     return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
 
 
+# Fixed costs (smoke's wall time is mostly these): a process pool's start, its `workers` spawned processes importing
+# torch and pybullet (~2 s on idle cores, the comment in train_policy; 7-8 s measured with a PPO training on both
+# cores), once per pool a stage starts; and the figures stage (9.5 s in a smoke run).
+POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
+POOL_START_S, FIGURES_S = 2.0, 10.0
+
+
 def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
     """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
     trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing,
     scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
-    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier); the
-    figures stage is left out (seconds)."""
+    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
+    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
+    figures stage (FIGURES_S)."""
     p, episode = preset, ballu.BalluConfig().episode_steps
     J = p.score_episodes * episode                                            # one design's score J
     probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
@@ -390,11 +420,12 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
             "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J, 0]),
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
             "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
-            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0])}
+            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
     played = played_share(p)
+    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
     return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": (w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / workers / 3600}
-            for stage, w in work.items()}
+                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / workers + fixed[stage])
+                    / 3600} for stage, w in work.items()}
 
 
 def plan_text(preset: Preset, workers: int = 2) -> str:
@@ -405,7 +436,8 @@ def plan_text(preset: Preset, workers: int = 2) -> str:
     lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
               f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
     total = sum(v["hours"] for v in rows.values())
-    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h ({total * workers:.0f} core-hours)"])
+    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
+                              f"({total * workers:.1f} core-hours)"])
 
 
 def rate_job(folder: str, kind: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
@@ -479,6 +511,56 @@ def read_json(path: str):
         return json.load(fh)
 
 
+class Damaged(BadInput):
+    """A file an earlier attempt of this run wrote cannot be read back (truncated, garbage, another format)."""
+
+
+FRESH = "rerun with --fresh to start over"
+READ_ERRORS = (ValueError, KeyError, TypeError, AttributeError, IndexError, EOFError)   # JSON, UTF-8, torch, shape
+
+
+def read_back(path: str, load=read_json, what: str = "JSON file", fix: str = FRESH):
+    """load(path) of a file an earlier attempt wrote; if it is truncated, garbage or of another format, Damaged
+    names the file and what to do (a JSON or torch traceback says neither; torch's would even suggest
+    weights_only=False on a file we cannot trust)."""
+    try:
+        with warnings.catch_warnings():   # torch.load warns on foreign pickles: noise beside our one line
+            warnings.simplefilter("ignore")
+            return load(path)
+    except READ_ERRORS as e:
+        raise Damaged(f"{path} is damaged (not a readable {what}: {type(e).__name__}); {fix}") from None
+
+
+def redo_if_damaged(path: str, load=read_json, what: str = "JSON file", part: str = "redoing its part"):
+    """read_back of a file whose part the run can redo exactly (every number derives from --seed): a damaged one
+    is moved aside to <path>.damaged with a warning and None returned, as for a missing file."""
+    if not os.path.exists(path):
+        return None
+    try:
+        return read_back(path, load, what)
+    except Damaged as e:
+        os.replace(path, path + ".damaged")
+        say(f"warning: {str(e).split(';')[0]}: moved aside to {os.path.basename(path)}.damaged; {part}")
+        return None
+
+
+def ckpt_steps(path: str) -> int:
+    return int(ppo.load_checkpoint(path)["steps"])
+
+
+def stage_json(path: str):
+    return read_json(path)["result"]
+
+
+def score_set(path: str) -> np.ndarray:
+    return np.array(read_json(path)["scores"], dtype=float)
+
+
+def fmt_y(y) -> str:
+    """A score J in a progress line (a failed trial's y is None)."""
+    return "failed" if y is None else f"{y:.2f}"
+
+
 def say(msg: str) -> None:
     print(f"[run_all {time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
@@ -504,7 +586,9 @@ class Progress:
 
 
 class Throttled:
-    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds."""
+    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds. ppo.train
+    prints the mean return of the last 100 episodes as '+nan' until an episode ends (all of smoke's trainings):
+    shown as '-'."""
 
     def __init__(self, prefix: str, every: float = 30.0):
         self.prefix, self.every, self.last = prefix, every, 0.0
@@ -512,20 +596,37 @@ class Throttled:
     def __call__(self, text: str):
         if time.time() - self.last >= self.every:
             self.last = time.time()
-            say(f"    {self.prefix} {text}")
+            say(f"    {self.prefix} " + re.sub(r"return\s+[+-]?nan", "return        -", text))
 
 
 _DASK_CLIENTS: dict = {}
 
 
+PROJECT_MODULES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")   # each imports only earlier ones
+CONNECT_TIMEOUT_S = 5
+
+
 def dask_client(scheduler: str | None, workers: int):
     """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
-    processes with one thread each (torch keeps one thread per job)."""
+    processes with one thread each (torch keeps one thread per job).
+
+    A cluster started by hand (`dask scheduler`, `dask worker ADDR` anywhere, no PYTHONPATH) gets this checkout's
+    modules from the client (Client.upload_file, to the scheduler too: it unpickles the task graph, which names
+    run_all's functions), and so does every worker that joins later. An unreachable or malformed address is a
+    one-line BadInput after CONNECT_TIMEOUT_S, not distributed's 30 s wait and traceback."""
     key = (scheduler, workers)
     if key not in _DASK_CLIENTS:
         from distributed import Client, LocalCluster
         if scheduler:
-            _DASK_CLIENTS[key] = Client(scheduler)
+            try:
+                client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+            except (OSError, ValueError, TypeError) as e:
+                raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
+                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
+                               f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
+            for name in PROJECT_MODULES:
+                client.upload_file(os.path.join(HERE, name))
+            _DASK_CLIENTS[key] = client
         else:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
             _DASK_CLIENTS[key] = Client(cluster)
@@ -593,13 +694,21 @@ def code_hash() -> str:
 def trim_log(csv_path: str, steps: int) -> None:
     """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
     resumed run's learning curve has no duplicated stretch."""
-    if not os.path.exists(csv_path):
+    rows = redo_if_damaged(csv_path, read_log_rows, "learning-curve CSV", "its curve restarts here")
+    if rows is None:
         return
-    with open(csv_path) as fh:
+    tmp = f"{csv_path}.tmp{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
+    os.replace(tmp, csv_path)
+
+
+def read_log_rows(path: str) -> list:
+    """A learning-curve CSV of ppo.train: its header and rows, each row's numbers checked."""
+    with open(path) as fh:
         rows = list(csv.reader(fh))
-    keep = rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps]
-    with open(csv_path, "w", newline="") as fh:
-        csv.writer(fh).writerows(keep)
+    [[float(v) for v in r] for r in rows[1:]]
+    return rows
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -669,10 +778,16 @@ def baseline_jobs(run: Run) -> list:
     return jobs
 
 
+def train_baseline(run: Run, name: str, kind: str, task: str, sampler) -> str:
+    """Train (or resume, or skip if done) one policy of baseline_jobs, in-process (one core)."""
+    return train_policy(policy_dir(run, name), kind, task, sampler, run.preset.ppo_steps, run.preset,
+                        derive_seed(run.seed, "ppo", name), 1, name)
+
+
 def timed_train(*args) -> tuple:
-    """train_policy in a pool worker; returns (checkpoint, wall seconds of this policy alone)."""
+    """train_baseline in a pool worker; returns (checkpoint, wall seconds of this policy alone)."""
     t0 = time.time()
-    return train_policy(*args), time.time() - t0
+    return train_baseline(*args), time.time() - t0
 
 
 def stage_baselines(run: Run) -> dict:
@@ -683,9 +798,7 @@ def stage_baselines(run: Run) -> dict:
     prog, out = Progress("policies", len(jobs), every=0, parallel=run.workers), {}
     ex = run.pool()
     try:
-        futures = [ex.submit(timed_train, policy_dir(run, name), kind, task, sampler, run.preset.ppo_steps,
-                             run.preset, derive_seed(run.seed, "ppo", name), 1, name)
-                   for name, kind, task, sampler in jobs]
+        futures = [ex.submit(timed_train, run, *job) for job in jobs]
         for i, ((name, *_), fut) in enumerate(zip(jobs, futures)):
             ckpt, seconds = fut.result()
             out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
@@ -712,7 +825,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
                            fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage)
     os.makedirs(run_dir, exist_ok=True)
     times_path = os.path.join(run_dir, "round_seconds.json")
-    times = read_json(times_path) if os.path.exists(times_path) else {}
+    times = redo_if_damaged(times_path, part="counting its round times from now on") or {}
     last = [time.time()]
 
     def on_round(msg: str):
@@ -767,8 +880,9 @@ def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
     """Score a set of designs once (`compute(trace)` -> scores, filling `trace` as score_policy does); kept in
     scores/<key>.json with each design's per-episode final pelvis x (a resumable unit)."""
     path = run.path("scores", f"{key}.json")
-    if os.path.exists(path):
-        return np.array(read_json(path)["scores"])
+    done = redo_if_damaged(path, score_set, part=f"redoing score set {key}")
+    if done is not None:
+        return done
     trace = {}
     s = np.asarray(compute(trace), dtype=float)
     full = np.asarray(designs_full, dtype=float)
@@ -847,7 +961,7 @@ def tpe_search(spec: SearchSpec) -> dict:
     def after(study, trial):
         secs = [t.seconds or 0.0 for t in study.trials]
         eta = np.mean(secs) * (n - len(secs))
-        say(f"  tpe {spec.name} trial {len(secs)}/{n} y={trial.y} best={study.best.y if study.best else None} "
+        say(f"  tpe {spec.name} trial {len(secs)}/{n} y={fmt_y(trial.y)} best={fmt_y(study.best and study.best.y)} "
             f"eta {eta:.0f}s")
         kill_hook(f"tpe:{spec.name}:trial{trial.index}")
 
@@ -983,13 +1097,13 @@ def stage_cost(run: Run) -> dict:
     p = run.preset
     t, s = p.cost_task, p.cost_space
     space = space_of(p, t, s)
-    ges_summary = read_json(run.path("stages", "ges.json"))["result"][run.main_ges(t, s)]
-    router = read_json(run.path("stages", "table2.json"))["result"]["peaks"][f"{t}-{s}-ges"]
+    ges_summary = stage_result(run, "ges")[run.main_ges(t, s)]
+    router = stage_result(run, "table2")["peaks"][f"{t}-{s}-ges"]
 
     os.makedirs(run.path("tpe"), exist_ok=True)
 
     def after(study, trial):
-        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={trial.y} ({trial.seconds:.0f}s)")
+        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} ({trial.seconds:.0f}s)")
         kill_hook(f"cost:trial{trial.index}")
 
     with run.pool() as ex:
@@ -1001,8 +1115,7 @@ def stage_cost(run: Run) -> dict:
     bo_measured = float(sum(tr.seconds or 0.0 for tr in study.trials))
     bo_total = bo_measured / len(study.trials) * p.tpe_trials
     # with ges_warm_start the e2e MLP the specialists start from is part of GES's cost
-    warm_s = (read_json(run.path("stages", "baselines.json"))["result"][f"mlp-{t}-{s}"]["seconds"]
-              if p.ges_warm_start else 0.0)
+    warm_s = stage_result(run, "baselines")[f"mlp-{t}-{s}"]["seconds"] if p.ges_warm_start else 0.0
     stage1 = ges_summary["stage1_core_s"]
     ges_total = warm_s + stage1 + router["seconds"]
     return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
@@ -1048,7 +1161,8 @@ def probe_agreement(ckpts: list, task: str = "obstacle", n_designs: int = 20, le
     J = {w: np.zeros((len(ckpts), n_designs)) for w in ways}
     seconds = {w: 0.0 for w in ways}
     for k, ckpt in enumerate(ckpts):
-        policy = ppo.load_policy(ckpt)
+        policy = read_back(ckpt, ppo.load_policy, "ppo.py checkpoint", "give --probe-agreement checkpoints that "
+                           "ppo.py wrote")
         for w, (th, kw) in ways.items():
             t0 = time.time()
             J[w][k] = ballu.score(policy, space.full(th), task, workers=max(1, min(workers, n_designs)), **kw)
@@ -1144,7 +1258,7 @@ def fig_experts(run: Run, path: str) -> tuple:
     theta = distinct_designs(space, 10, derive_seed(run.seed, "fig4"))
     full = space.full(theta)
     gate = load_policy(run, "moe", t, s).gate_weights(ballu.normalise_design(full).astype(np.float32))
-    res = ges.load_result(run.path("ges", run.main_ges(t, s)))
+    res = load_ges(run.path("ges", run.main_ges(t, s)))
     ks = res.route(theta)
     hard = np.eye(len(res.ckpt))[ks]
     ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
@@ -1190,7 +1304,7 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
     space = space_of(run.preset, "obstacle", "d2")
     peak = t2["peaks"]["obstacle-d2-ges"]["peak_design"]
     full = space.full([peak[n] for n in space.names])
-    experts = [ppo.load_policy(c) for c in ges.load_result(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
+    experts = [load_ges_ckpt(c) for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
     fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     dt = ballu.BalluConfig().control_dt
     for k, expert in enumerate(experts):
@@ -1219,7 +1333,8 @@ def fig_ksens(ks: dict, path: str) -> str:
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.errorbar(K, m, yerr=sd, fmt="o-", capsize=3, label="ours (mean +- std over test designs)")
     ax.axvline(PAPER_KSENS_PEAK_K, color="r", ls="--", lw=1, label=f"paper: peak at K={PAPER_KSENS_PEAK_K}")
-    ax.set(xlabel="K (specialists)", ylabel="GES mean J [cm]", title="Fig. 7: K sensitivity (obstacle, D2)")
+    ax.set(xlabel="K (specialists)", ylabel="GES mean J [cm]", title="Fig. 7: K sensitivity (obstacle, D2)",
+           xticks=sorted(set(K) | {PAPER_KSENS_PEAK_K}))   # K is a count: integer ticks only
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -1270,8 +1385,9 @@ def fig_curves(logs: list, path: str, title: str) -> str:
     plt = _plt()
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
     for label, csv_paths in logs:
-        parts = [read_log(c) for c in csv_paths if os.path.exists(c) and os.path.getsize(c) > 0]
-        parts = [p for p in parts if len(p["steps"])]
+        parts = [redo_if_damaged(c, read_log, "learning-curve CSV", "its curve is left out") for c in csv_paths
+                 if os.path.exists(c) and os.path.getsize(c) > 0]
+        parts = [p for p in parts if p is not None and len(p["steps"])]
         if not parts:
             continue
         d = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -1297,8 +1413,7 @@ def ges_logs(run: Run, name: str, K: int) -> list:
 
 def stage_figures(run: Run) -> dict:
     """Every figure: Figs. 1, 3-8 and the learning curves of every trained policy."""
-    t2 = read_json(run.path("stages", "table2.json"))["result"]
-    ks = read_json(run.path("stages", "ksens.json"))["result"]
+    t2, ks = stage_result(run, "table2"), stage_result(run, "ksens")
     fdir = run.path("figures")
     os.makedirs(fdir, exist_ok=True)
     figs = {"fig3": fig_distributions(run, t2, os.path.join(fdir, "fig3_distributions.png"))}
@@ -1308,7 +1423,7 @@ def stage_figures(run: Run) -> dict:
     for t in TASKS:
         for s in SPACES:
             name = run.main_ges(t, s)
-            figs[f"fig6-{t}-{s}"] = ges.plot_territories(read_json(run.path("ges", name, ges.HISTORY_FILE)),
+            figs[f"fig6-{t}-{s}"] = ges.plot_territories(load_ges(run.path("ges", name)).history,
                                                           os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
     figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
     figs["fig8"] = fig_sensitivity(run, t2, os.path.join(fdir, "fig8_design_sensitivity.png"))
@@ -1434,10 +1549,10 @@ def comparison_cell(cmp: dict, paper_win=None) -> str:
             f"wins {cmp['win_pct']:.0f} % [{cmp['win_lo']:.0f}, {cmp['win_hi']:.0f}] ({pw}), ties {cmp['tie_pct']:.0f} %")
 
 
-def cell(ours, paper, fmt="{:.1f}") -> str:
-    """'ours (paper)'; a missing number is '-'."""
+def cell(ours, paper, fmt="{:.1f}", paper_fmt=None) -> str:
+    """'ours (paper)'; a missing number is '-'. paper_fmt: the paper's own precision if it differs."""
     o = "-" if ours is None else fmt.format(ours)
-    p = "-" if paper is None else fmt.format(paper)
+    p = "-" if paper is None else (paper_fmt or fmt).format(paper)
     return f"{o} ({p})"
 
 
@@ -1448,8 +1563,9 @@ def md_table(header: list, rows: list) -> list:
 
 
 def stage_result(run: Run, name: str):
+    """A finished stage's result, None if it has not finished (repair moved a damaged one aside)."""
     path = run.path("stages", f"{name}.json")
-    return read_json(path)["result"] if os.path.exists(path) else None
+    return read_back(path, stage_json, fix=f"delete it to redo stage {name}") if os.path.exists(path) else None
 
 
 def report_header(run: Run, manifest: dict) -> list:
@@ -1484,6 +1600,10 @@ def score_text(p: Preset) -> str:
     return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
 
 
+DESIGN_WORDS = ("D2 = (gcr, spcf) with l_f = l_t = 0.45 m; D3 = (gcr, spcf, l) with l = l_f = l_t, the symmetric "
+                "leg length (paper Sec. III-B).")
+
+
 def report_table1(table1: dict) -> list:
     rows = []
     for name, (low, high, base) in table1["rows"].items():
@@ -1491,7 +1611,7 @@ def report_table1(table1: dict) -> list:
         rows.append([name, cell(low, paper_low, "{:g}"), cell(high, paper_high, "{:g}"),
                      cell(base, paper_base, "{:g}")])
     return ["## Table I: design space and baseline design", ""] + md_table(
-        ["parameter", "lower", "upper", "baseline"], rows)
+        ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {DESIGN_WORDS}", ""]
 
 
 def report_table2(table2: dict, preset: Preset) -> list:
@@ -1523,6 +1643,7 @@ def report_table2(table2: dict, preset: Preset) -> list:
                "'baseline policy' = that policy on the test designs (not in the paper).", "",
                f"### Peaks found by TPE ({preset.tpe_trials} trials maximising each method's J)", ""]
             + md_table(["task", "space", "method", "peak J", "peak design", "paper's peak design"], peaks)
+            + [f"Designs: {DESIGN_WORDS}", ""]
             + ["### Head-to-head: GES against each baseline on the same test designs", "",
                "Cells: mean difference GES - baseline [95 % paired-bootstrap CI], Wilcoxon signed-rank p; % of "
                "designs where GES scores higher [95 % CI] (paper's %), % ties.", ""]
@@ -1533,15 +1654,15 @@ def report_table3(table3: dict, preset: Preset) -> list:
     rows = []
     for init, r in table3.items():
         paper_mean, paper_min, paper_max = PAPER_TABLE3.get(init, (None, None, None))
-        rows.append([init, cell_ci(r["scores"], paper_mean), cell(r["min"], paper_min, "{:.0f}"),
-                     cell(r["max"], paper_max, "{:.0f}"), r["rounds"], f"{r['coverage']:.1%}"])
+        rows.append([init, cell_ci(r["scores"], paper_mean), cell(r["min"], paper_min, "{:.1f}", "{:g}"),
+                     cell(r["max"], paper_max, "{:.1f}", "{:g}"), r["rounds"], f"{r['coverage']:.1%}"])
     return ([f"## Table III: GES initialisation (K = {preset.K_d2}, obstacle, D2, {preset.n_test} test designs, cm)",
              ""] + md_table(["init", "mean [95 % CI] (paper)", "min", "max", "GES rounds", "final coverage"], rows))
 
 
 def report_ksens(ksens: dict) -> list:
     best = max(ksens, key=lambda k: ksens[k]["mean"])
-    rows = [[K, mean_ci(r["scores"]), f"{r['std']:.1f}", f"{r['min']:.0f}", f"{r['max']:.0f}", r["rounds"],
+    rows = [[K, mean_ci(r["scores"]), f"{r['std']:.1f}", f"{r['min']:.1f}", f"{r['max']:.1f}", r["rounds"],
              f"{r['coverage']:.1%}"] for K, r in ksens.items()]
     return (["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
              f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", ""]
@@ -1638,8 +1759,7 @@ def report_claims(results: dict) -> list:
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
-    times_path = run.path("stage_seconds.json")
-    times = read_json(times_path) if os.path.exists(times_path) else {}
+    times = redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on") or {}
     sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", report_ksens),
                 ("ges", report_ges_runs), ("cost", report_cost), ("figures", report_figures)]
@@ -1652,8 +1772,10 @@ def report(run: Run, manifest: dict) -> str:
     lines += ["## Wall time per stage (all attempts)", ""] + md_table(
         ["stage", "wall time"], [[n, f"{times[n]:.0f} s"] for n in STAGES if n in times])
     text = "\n".join(lines).rstrip("\n") + "\n"
-    with open(run.path("REPORT.md"), "w") as fh:
+    tmp = run.path(f"REPORT.md.tmp{os.getpid()}")   # atomic, as every write of a run
+    with open(tmp, "w") as fh:
         fh.write(text)
+    os.replace(tmp, run.path("REPORT.md"))
     write_json(run.path("results.json"), {"manifest": manifest, "stages": results, "stage_seconds": times})
     return text
 
@@ -1722,8 +1844,13 @@ def check_args(args) -> tuple:
     bad = [s for s in only if s not in STAGES]
     if bad:
         raise BadInput(f"unknown stage(s) {bad} in --only; known: {','.join(STAGES)}")
-    if args.workers < 1:
-        raise BadInput(f"--workers={args.workers} must be >= 1")
+    if not only:
+        raise BadInput(f"--only {args.only!r} names no stage; known: {','.join(STAGES)}")
+    default = parse([])
+    alone = [f"--{k.replace('_', '-')}" for k in ("task", "designs", "level_steps", "episodes", "jitter")
+             if getattr(args, k) != getattr(default, k)]
+    if alone:
+        raise BadInput(f"{', '.join(alone)} only apply with --probe-agreement")
     if args.seed < 0:
         raise BadInput(f"--seed={args.seed} must be >= 0")
     if args.scheduler and args.executor != "dask":
@@ -1733,6 +1860,8 @@ def check_args(args) -> tuple:
             import distributed  # noqa: F401
         except ImportError:
             raise BadInput("--executor dask needs the 'distributed' package (pip install distributed)") from None
+        if args.scheduler:
+            dask_client(args.scheduler, args.workers)   # connect now: a wrong address fails before anything is written
     return [s for s in STAGES if s in only]
 
 
@@ -1747,7 +1876,9 @@ def check_output(out: str, manifest: dict, fresh: bool) -> bool:
         return False
     if not os.path.exists(mpath):
         raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
-    old = read_json(mpath)
+    if fresh:   # ours (it has a manifest.json), wiped whatever that file holds
+        return False
+    old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
     keys = ("results_format", "preset", "budgets", "seed", "code_hash")
     diff = [k for k in keys if old.get(k) != manifest[k]]
     if diff and not fresh:
@@ -1757,14 +1888,49 @@ def check_output(out: str, manifest: dict, fresh: bool) -> bool:
     return not fresh
 
 
+def stage_done(out: str, name: str) -> bool:
+    """A stage's result is there and readable (a damaged one is redone: repair)."""
+    path = os.path.join(out, "stages", f"{name}.json")
+    try:
+        return os.path.exists(path) and stage_json(path) is not None
+    except READ_ERRORS:
+        return False
+
+
 def check_needs(out: str, stages: list, reuse: bool) -> None:
-    """Each requested stage's inputs must be finished already or be requested before it."""
-    have = {n for n in STAGES if reuse and os.path.exists(os.path.join(out, "stages", f"{n}.json"))}
+    """Each requested stage's inputs must be finished already (readable) or be requested before it."""
+    have = {n for n in STAGES if reuse and stage_done(out, n)}
     for name in stages:
         missing = [n for n in STAGES[name][1] if n not in have]
         if missing:
-            raise BadInput(f"stage {name} needs stage(s) {missing} first (run them too, or drop --only)")
+            damaged = [f"stages/{n}.json" for n in missing if os.path.exists(os.path.join(out, "stages", f"{n}.json"))]
+            raise BadInput(f"stage {name} needs stage(s) {missing} first (run them too, or drop --only)"
+                           + (f"; {', '.join(damaged)} is damaged" if damaged else ""))
         have.add(name)
+
+
+def repair(run: Run) -> None:
+    """Before a resumed run's stages: read back every work file it may use. What can be redone exactly (a stage's
+    result, a score set, a TPE search, a standalone policy, timing records) is moved aside and redone, with a
+    warning; a damaged GES run stops the run with a one-line error naming the file and what to do."""
+    for name in STAGES:
+        redo_if_damaged(run.path("stages", f"{name}.json"), stage_json, part=f"redoing stage {name}")
+    redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on")
+    for f in sorted(glob.glob(run.path("scores", "*.json"))):
+        redo_if_damaged(f, score_set, part="it is redone when a stage needs it")
+    for f in sorted(glob.glob(run.path("tpe", "*.json"))):
+        redo_if_damaged(f, tpe.read_study, "TPE study", part="it is redone when a stage needs it")
+    for d in sorted(glob.glob(run.path("ges", "*", ""))):
+        if os.path.exists(os.path.join(d, ges.STATE_FILE)):
+            for c in load_ges(d.rstrip(os.sep)).ckpt:
+                if c:
+                    read_back(c, ckpt_steps, "ppo.py checkpoint", ges_fix(d.rstrip(os.sep)))
+        redo_if_damaged(os.path.join(d, "round_seconds.json"), part="counting its round times from now on")
+    if stage_result(run, "baselines"):   # a finished stage is skipped: retrain a damaged policy here
+        for job in baseline_jobs(run):
+            if not os.path.exists(policy_dir(run, job[0]) + "/policy.pt"):
+                say(f"warning: policies/{job[0]}/policy.pt is missing: retraining it")
+            train_baseline(run, *job)
 
 
 def open_output(out: str, manifest: dict, reuse: bool) -> dict:
@@ -1778,16 +1944,18 @@ def open_output(out: str, manifest: dict, reuse: bool) -> dict:
         os.makedirs(out)
         write_json(mpath, manifest)
     except OSError as e:
+        shutil.rmtree(out, ignore_errors=True)   # a failed command leaves no empty folder behind
         raise BadInput(f"cannot write to output folder {out}: {e}") from None
     return manifest
 
 
-def run_stage(run: Run, name: str) -> None:
-    """Run one stage unless its result exists; record its wall time (summed over attempts)."""
+def run_stage(run: Run, name: str) -> float:
+    """Run one stage unless its result exists; record its wall time (summed over attempts); returns the seconds
+    it ran (0 if skipped)."""
     path = run.path("stages", f"{name}.json")
-    if os.path.exists(path):
+    if stage_result(run, name) is not None:
         say(f"stage {name}: done already, skipped")
-        return
+        return 0.0
     fn = STAGES[name][0]
     say(f"stage {name}: start")
     t0 = time.time()
@@ -1795,11 +1963,25 @@ def run_stage(run: Run, name: str) -> None:
         result = fn(run)
     finally:
         tp = run.path("stage_seconds.json")
-        times = read_json(tp) if os.path.exists(tp) else {}
+        times = redo_if_damaged(tp, part="counting the stage times from now on") or {}
         times[name] = times.get(name, 0.0) + time.time() - t0
         write_json(tp, times)
     write_json(path, {"stage": name, "result": result})
     say(f"stage {name}: done in {time.time() - t0:.1f}s")
+    return time.time() - t0
+
+
+ETA_PRIOR_S = 60.0   # the pace starts at 1 as if this much had run to plan: a stage of seconds says little
+
+
+def run_eta(planned: dict, ran: dict, left: list) -> str:
+    """The whole run's ETA: plan()'s seconds of the stages left, scaled by the pace so far (seconds the stages run
+    in this call took / their planned seconds, shrunk toward 1 by ETA_PRIOR_S). Skipped stages count for neither."""
+    done_plan = sum(planned.get(s, 0.0) for s in ran)
+    pace = (sum(ran.values()) + ETA_PRIOR_S) / (done_plan + ETA_PRIOR_S)
+    eta = pace * sum(planned.get(s, 0.0) for s in left)
+    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left, " + (
+        f"--plan's time x {pace:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
 
 
 def main(argv=None) -> int:
@@ -1807,12 +1989,12 @@ def main(argv=None) -> int:
     preset = PRESETS[args.preset]
     out = os.path.abspath(args.out or os.path.join(HERE, "results", preset.name))
     try:
+        if args.workers < 1:
+            raise BadInput(f"--workers {args.workers} must be >= 1")
         if args.plan:
             print(plan_text(preset, args.workers), flush=True)
             return 0
         if args.rates:
-            if args.workers < 1:
-                raise BadInput(f"--workers {args.workers} must be >= 1")
             print(rates_text(measure_rates(preset, args.workers)), flush=True)
             return 0
         if args.probe_agreement is not None:
@@ -1826,12 +2008,23 @@ def main(argv=None) -> int:
         check_needs(out, stages, reuse)
         manifest = open_output(out, manifest, reuse)
         run = Run(out, preset, args.seed, args.workers, args.executor, args.scheduler)
+        if reuse:
+            repair(run)
         t0 = time.time()
         say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
             f"stages {stages}")
+        planned = {k: 3600 * v["hours"] for k, v in plan(preset, args.workers).items()}
+        todo, ran = [s for s in stages if not stage_done(out, s)], {}
+        if todo:
+            say(run_eta(planned, ran, todo))
         try:
             for name in stages:
-                run_stage(run, name)
+                seconds = run_stage(run, name)
+                if seconds:
+                    ran[name] = seconds
+                    todo.remove(name)
+                    if todo:
+                        say(f"{run_eta(planned, ran, todo)}; elapsed {time.time() - t0:.0f}s")
         finally:
             close_dask_clients()
             report(run, manifest)
@@ -1840,6 +2033,8 @@ def main(argv=None) -> int:
     except BadInput as e:
         print(f"run_all.py: error: {e}", file=sys.stderr)
         return 2
+    finally:
+        close_dask_clients()   # a client connected by check_args, if a later check failed
 
 
 if __name__ == "__main__":

@@ -1442,6 +1442,41 @@ def test_ges_bench_runs():
     assert set(t) == {"reference_one_gaussian", "coverage_K6", "route_K6"} and all(v > 0 for v in t.values())
 
 
+DAMAGES = {"truncated": lambda b: b[:len(b) // 2], "random bytes": lambda b: bytes(range(256)) * 4,
+           "a JSON list": lambda b: b"[1, 2, 3]", "another format": lambda b: b'{"format": "optuna-v3", "trials": []}',
+           "a pickle": lambda b: pickle.dumps({"policy": object})}   # torch would advise weights_only=False
+
+
+@pytest.mark.parametrize("damage", list(DAMAGES))
+def test_ges_damaged_state_names_the_file_and_what_to_do(synthetic_run, tmp_path, damage):
+    """A state.json that is truncated, garbage (JSONDecodeError / UnicodeDecodeError) or not a GES state: one
+    ValueError naming the file and saying to delete the run_dir, from load_result and from a resumed run_ges."""
+    import shutil
+    run_dir = tmp_path / "run"
+    shutil.copytree(synthetic_run.run_dir, run_dir)
+    state = run_dir / ges.STATE_FILE
+    state.write_bytes(DAMAGES[damage](state.read_bytes()))
+    for call in (lambda: ges.load_result(str(run_dir)), lambda: _run(run_dir)):
+        with pytest.raises(ValueError) as e:
+            call()
+        assert f"{state} is not a readable GES state" in str(e.value) and f"delete {run_dir}" in str(e.value)
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["--demo", "OUT", "--seed", "-7"], "--seed -7 must be an integer >= 0"),
+    (["--demo", "OUT", "--workers", "0"], "--workers 0 must be an integer >= 1"),
+    (["--demo", "OUT", "--workers", "-2"], "--workers -2 must be an integer >= 1"),
+    (["--demo", " "], "--demo needs a folder name"), (["--demo", "/proc/ges_demo_test"], "cannot write there"),
+    (["--demo", "FILE"], "exists and is not a folder")])
+def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tmp_path, capsys):
+    (tmp_path / "file").write_text("a file")
+    out = str(tmp_path / "demo")
+    assert ges.main([{"OUT": out, "FILE": str(tmp_path / "file")}.get(a, a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("ges.py: error: ") and msg in err, err
+    assert not os.path.exists(out)
+
+
 # ==========================================================================================================
 # tpe.py: Tree-structured Parzen Estimator for the outer design search
 # ==========================================================================================================
@@ -1791,6 +1826,19 @@ def test_tpe_suggestions_stay_in_bounds(multivariate):
     assert X.shape == (40, 4) and np.all(X >= lows) and np.all(X <= highs)
 
 
+@pytest.mark.parametrize("damage", list(DAMAGES))
+def test_tpe_damaged_study_file_names_the_file_and_what_to_do(tmp_path, damage):
+    """A study file that is truncated, garbage (not UTF-8) or of another format: one ValueError naming the file and
+    saying to delete it, not a JSON / Unicode / AttributeError traceback."""
+    path = tmp_path / "study.json"
+    optimize(quadratic, [0, 0], [1, 1], 3, seed=1, path=str(path), verbose=False)
+    path.write_bytes(DAMAGES[damage](path.read_bytes()))
+    with pytest.raises(ValueError) as e:
+        TPE([0, 0], [1, 1], seed=1, path=str(path))
+    assert f"{str(path)!r} is not a tpe-study-v1 study file" in str(e.value) and "delete it" in str(e.value)
+    assert "\n" not in str(e.value)
+
+
 def test_tpe_progress_lines_and_callback(capsys):
     seen = []
     optimize(flaky, [0, 0], [1, 1], 5, names=["gcr", "spcf"], verbose=True,
@@ -1994,15 +2042,80 @@ def raw_numbers(out: str) -> dict:
     return nums
 
 
-def test_run_all_on_a_local_dask_cluster_gives_the_same_numbers(smoke_run, tmp_path):
-    """The smoke preset on a 2-process local Dask cluster (`--executor dask`) gives exactly the raw numbers of
-    the inline run with the same seed: every score, GES territory, TPE trial and policy checkpoint."""
-    out = str(tmp_path / "dask")
-    assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "2", "--seed", "3",
-                         "--executor", "dask"]) == 0
+def _wait_for_port(port: int, seconds: float = 60) -> None:
+    import socket
+    import time
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.3)
+    raise TimeoutError(f"nothing listens on port {port} after {seconds} s")
+
+
+def test_run_all_on_a_dask_cluster_started_by_hand_gives_the_same_numbers(smoke_run, tmp_path):
+    """The README's cluster commands as a user types them: `dask scheduler` and `dask worker ADDR --nthreads 1
+    --nworkers 2` started in a folder that is not the checkout, without PYTHONPATH (nothing of ours importable
+    there), then `--executor dask --scheduler ADDR`: the client uploads the modules, and the smoke preset gives
+    exactly the raw numbers of the inline run with the same seed: every score, GES territory, TPE trial and
+    policy checkpoint."""
+    import signal
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    dask = [sys.executable, "-m", "dask"]
+    log = open(tmp_path / "cluster.log", "w")
+    procs = [subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                              cwd=elsewhere, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)]
+    try:
+        _wait_for_port(port)
+        procs.append(subprocess.Popen(dask + ["worker", f"tcp://127.0.0.1:{port}", "--nthreads", "1", "--nworkers", "2",
+                                              "--no-dashboard"], cwd=elsewhere, env=env, stdout=log,
+                                      stderr=subprocess.STDOUT, start_new_session=True))
+        out = str(tmp_path / "dask")
+        assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "2", "--seed", "3", "--executor", "dask",
+                             "--scheduler", f"tcp://127.0.0.1:{port}"]) == 0
+    finally:
+        for p in reversed(procs):   # each in its own session: end the worker's nanny processes with it
+            os.killpg(p.pid, signal.SIGTERM)
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+        log.close()
     mine, ref = raw_numbers(out), raw_numbers(smoke_run)
     assert mine.keys() == ref.keys() and len(ref) >= 100   # 111 in the smoke preset
     assert [k for k in ref if mine[k] != ref[k]] == []
+
+
+def test_run_all_local_dask_cluster_runs_jobs():
+    """`--executor dask` without --scheduler: a local cluster of --workers processes runs run_all's jobs (the
+    numbers' equality is the hand-started cluster's test above)."""
+    ex = run_all.dask_executor(run_all.dask_client(None, 2))
+    try:
+        assert ex.submit(run_all.derive_seed, 3, "ppo", "a").result() == run_all.derive_seed(3, "ppo", "a")
+    finally:
+        ex.shutdown(wait=True)
+        run_all.close_dask_clients()
+
+
+@pytest.mark.parametrize("address, words", [("notanaddress", "missing port number"),
+                                             ("tcp://127.0.0.1:1", "Timed out trying to connect")])
+def test_run_all_bad_scheduler_is_one_line_within_seconds(address, words, tmp_path, capsys):
+    import time
+    t0 = time.time()
+    assert run_all.main(["--preset", "smoke", "--out", str(tmp_path / "x"), "--executor", "dask",
+                         "--scheduler", address]) == 2
+    err = capsys.readouterr().err
+    assert time.time() - t0 < run_all.CONNECT_TIMEOUT_S + 5 and not (tmp_path / "x").exists()
+    assert err.count("\n") == 1 and f"error: --scheduler {address}: no Dask scheduler reachable" in err
+    assert words in err
 
 
 def test_run_all_scheduler_needs_the_dask_executor(tmp_path, capsys):
@@ -2173,3 +2286,74 @@ def test_run_all_cost_claim_needs_a_saving_beyond_the_drift():
     for red, want in ((0.4, "not resolved"), (37.0, "supported"), (-30.0, "not supported")):
         rows = [l for l in run_all.report_claims({"cost": {"reduction_pct": red}}) if "per-design BO" in l]
         assert len(rows) == 1 and f"| {want} |" in rows[0], (red, rows)
+
+
+def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
+    """A rerun on a damaged results folder: what can be redone exactly (a stage's result, a score set, a TPE study,
+    a standalone policy, timing records) is moved aside and redone with a warning, giving the same raw numbers;
+    a damaged manifest or GES run is a one-line error naming the file and what to do. Never torch's advice."""
+    import shutil
+    out = str(tmp_path / "run")
+    shutil.copytree(smoke_run, out)
+    args = ["--preset", "smoke", "--out", out, "--workers", "1", "--seed", "3"]
+
+    def damage(rel, how):
+        path = os.path.join(out, rel)
+        data = open(path, "rb").read()
+        open(path, "wb").write(DAMAGES[how](data))
+        return path, data
+
+    ges_dir = os.path.join("ges", "obstacle-d2-K3-fps-lloyd")
+    for rel, how, words in (("manifest.json", "truncated", ["manifest.json is damaged", "--fresh"]),
+                            (os.path.join(ges_dir, "state.json"), "random bytes",
+                             ["state.json is damaged (not a readable GES state", "delete the folder", ges_dir]),
+                            (os.path.join(ges_dir, "ckpt", "spec1_round01.ckpt"), "truncated",
+                             ["spec1_round01.ckpt is damaged (not a readable ppo.py checkpoint", "--fresh"]),
+                            (os.path.join(ges_dir, "ckpt", "spec0_round01.ckpt"), "a pickle",
+                             ["spec0_round01.ckpt is damaged (not a readable ppo.py checkpoint", "--fresh"])):
+        path, data = damage(rel, how)
+        assert run_all.main(args) == 2, rel
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and all(w in err for w in words) and "weights_only" not in err, err
+        open(path, "wb").write(data)
+    redo = {os.path.join("stages", "table2.json"): "a JSON list",
+            os.path.join("scores", "test-obstacle-d2-mlp.json"): "truncated",
+            os.path.join("tpe", "obstacle-d2-ges.json"): "another format",
+            os.path.join("policies", "mlp-obstacle-d2", "policy.pt"): "truncated",
+            "stage_seconds.json": "random bytes"}
+    for rel, how in redo.items():
+        damage(rel, how)
+    assert run_all.main(args) == 0
+    said = capsys.readouterr().out
+    for rel in redo:
+        assert f"{os.path.join(out, rel)} is damaged" in said and os.path.exists(os.path.join(out, rel) + ".damaged")
+    assert "stage table2: start" in said and "weights_only" not in said
+    mine, ref = raw_numbers(out), raw_numbers(smoke_run)   # the redone parts are the same numbers
+    assert mine.keys() == ref.keys() and [k for k in ref if mine[k] != ref[k]] == []
+    a, b = (json.load(open(os.path.join(d, "results.json")))["stages"] for d in (smoke_run, out))
+    assert _numbers_only(a) == _numbers_only(b)
+
+
+def test_run_all_what_a_user_sees(smoke_run, capsys):
+    """Progress lines: no '+nan' return before any episode ended, J to two decimals, a whole-run ETA. The report:
+    every table set apart by blank lines (Markdown would merge them), the head-to-head table once, Table III's
+    min / max at the means' precision, and D3's leg length l defined."""
+    run_all.Throttled("policy", every=0)("[mlp]  64/128 steps  reward -1.098  return     +nan  level   0.0")
+    assert "return        -  level" in capsys.readouterr().out
+    assert (run_all.fmt_y(1.0999999999999999), run_all.fmt_y(None)) == ("1.10", "failed")
+    planned = {"ges": 100.0, "table2": 50.0, "figures": 10.0}
+    assert run_all.run_eta(planned, {}, ["ges", "table2"]).startswith("whole run: eta 150s")
+    pace = (200.0 + run_all.ETA_PRIOR_S) / (100.0 + run_all.ETA_PRIOR_S)   # ges took twice its plan
+    assert run_all.run_eta(planned, {"ges": 200.0}, ["table2", "figures"]).startswith(
+        f"whole run: eta {pace * 60:.0f}s") and f"x {pace:.2f}" in run_all.run_eta(planned, {"ges": 200.0}, ["x"])
+    rep = open(os.path.join(smoke_run, "REPORT.md")).read().splitlines() + [""]   # the file ends after a table
+    for i, line in enumerate(rep):
+        if line.startswith("|") and not rep[i - 1].startswith("|"):
+            assert rep[i - 1] == "", (i, line)
+        if line.startswith("|") and not rep[i + 1].startswith("|"):
+            assert rep[i + 1] == "", (i, line)
+    assert sum("Head-to-head" in line for line in rep) == 1
+    assert sum(line.startswith("| task | space | vs baseline policy") for line in rep) == 1
+    t3 = [line for line in rep if line.startswith("| fps+lloyd |")][0].split(" | ")
+    assert re.fullmatch(r"\d+\.\d \(24\)", t3[2]) and re.fullmatch(r"\d+\.\d \(52\)", t3[3]), t3
+    assert any("l = l_f = l_t" in line for line in rep)

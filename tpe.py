@@ -368,17 +368,28 @@ class TPE:
     def _load(self, path: str):
         """Resume: the file must describe the same study, else its trials would
         not be the ones this study would have made."""
-        try:
-            with open(path) as fh:
-                data = json.load(fh)
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"path {path!r} exists but is not a readable study file: {exc}") from None
-        header = {k: data.get(k) for k in self._header()}
+        data = read_study(path)
         for key, value in self._header().items():
-            if header[key] != value:
+            if data.get(key) != value:
                 raise ValueError(f"path {path!r} holds a study with a different {key}: "
-                                 f"{header[key]!r} in the file vs {value!r} here")
+                                 f"{data.get(key)!r} in the file vs {value!r} here")
         self.trials = [Trial.from_json(d) for d in data["trials"]]
+
+
+def read_study(path: str) -> dict:
+    """A study file's content, checked: ValueError naming the file and what to do if it is truncated,
+    garbage (not UTF-8 JSON) or of another format, instead of a JSON / Unicode traceback."""
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+        if data.get("format") != FILE_FORMAT:
+            raise ValueError(f"format {data.get('format')!r}")
+        [Trial.from_json(d) for d in data["trials"]]
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:
+        why = f"{type(exc).__name__}: {str(exc).splitlines()[0][:80]}" if str(exc) else type(exc).__name__
+        raise ValueError(f"path {path!r} is not a {FILE_FORMAT} study file ({why}); delete it to start "
+                         f"that study over") from None
+    return data
 
 
 # ----------------------------------------------------------------------------
