@@ -26,6 +26,7 @@ import csv
 import math
 import os
 import time
+import warnings
 from collections import deque
 from dataclasses import asdict, dataclass
 
@@ -335,13 +336,17 @@ def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, 
 
 
 def load_checkpoint(path) -> dict:
-    """torch.load(weights_only=True) with a clear error for a missing, corrupt or foreign file."""
+    """torch.load(weights_only=True) with a one-line error for a missing, damaged or foreign file (torch's own
+    message is not shown: for a pickle it advises weights_only=False, which a user must not follow)."""
     if not os.path.exists(path):
         raise FileNotFoundError(f"checkpoint {path!r} does not exist")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise ValueError(f"checkpoint {path!r} is corrupt or not a ppo.py checkpoint: {e}") from None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:
+        raise ValueError(f"checkpoint {path!r} is truncated, damaged or not a ppo.py checkpoint; delete it to "
+                         f"train again") from None
     if not isinstance(state, dict) or state.get("version") != CKPT_VERSION:
         raise ValueError(f"checkpoint {path!r} is not a ppo.py checkpoint of version {CKPT_VERSION}")
     return state
@@ -502,8 +507,9 @@ class TrainLog:
             self.file.flush()
         if self.progress:
             eta = (self.total_steps - steps) / max(rate, 1e-9)
+            ret = f"{ep_ret:+8.2f}" if math.isfinite(ep_ret) else f"{'-':>8}"   # no episode has ended yet
             self.progress(f"[{self.kind}] {steps:>9,}/{self.total_steps:,} steps  {rate:6.0f} steps/s (rollout "
-                          f"{100 * t_roll / dt:3.0f}%)  reward {reward:+.3f}  return {ep_ret:+8.2f}  "
+                          f"{100 * t_roll / dt:3.0f}%)  reward {reward:+.3f}  return {ret}  "
                           f"level {level:5.1f}  kl {st['kl']:.4f}  lr {lr:.1e}  std {std:.2f}  "
                           f"eta {eta / 60:5.1f} min")
 

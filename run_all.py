@@ -281,7 +281,7 @@ class Preset:
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
     ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
-    ppo_start: str = "task"     # ours (issue 16): "task" = the task's measured default (ballu.train_start_levels:
+    ppo_start: str = "task"     # ours: "task" = the task's measured default (ballu.train_start_levels:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
     #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
     ges_warm_start: bool = False  # ours (quick, overnight): specialists start from their cell's e2e MLP (paper: random)
@@ -289,67 +289,46 @@ class Preset:
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
 
 
-# A bisection over curriculum levels for GES's probe scores (ours; ballu.score's `level_steps`): reaches +-33
-# levels (the 20-episode J: +-20) in 7 episodes, ~3x cheaper. Not in a preset until `--probe-agreement` shows it
-# agrees with the 20-episode J (issue 17: same winner >= 80 %, rank correlation >= 0.9). Measured on 4 e2e MLPs
-# (issue 16's screen, obstacle, 20 designs): 55 % and 0.54, so it is in no preset; the mechanism stays for a
-# better schedule. The bar's ceiling (`--jitter`): the 20-episode J itself, on designs moved by 0.1 % of each
-# range, agrees with J on 40 % of winners, Spearman 0.41 (4 other e2e MLPs; the bisection there: 45 %, 0.50),
-# so no probe score can meet the bar on such policies (README, under "Regenerate the paper").
+# A bisection over curriculum levels for GES's probe scores (ours; ballu.score's `level_steps`): ~3x cheaper than
+# the 20-episode J. In no preset: on trained e2e MLPs it picked J's winner on 55 % of designs (bar 80 %), and J
+# itself on designs moved by 0.1 % agrees with J no better (docs/probe_agreement). Kept for a better schedule.
 BISECTION = (16, 8, 4, 2, 1, 1, 1)
 
 
 # smoke: the whole pipeline with tiny budgets (the numbers mean nothing) to check that every stage, table and
 # figure works: 128 PPO steps per policy, 2 GES rounds x 2 probes, 3 test designs, 3 TPE trials, 1 episode per
-# score. Measured here (2 cores, both busy with other training): ~65 s with --workers 1, ~80 s with 2.
-# Its scores must still tell runs apart (ours, issue 17): scoring is ~90 % of its time, so each score stays one
-# episode, but from level 2, not 28/40: these barely trained policies never clear 28 cm and end 0.4-0.7 m in,
-# so from 28 every J was 27.1 cm; at 2 cm a lane ending in the stay band (0.5-1.0 m) keeps its level, and J
-# differs by design and policy. Probes use a one-episode schedule of 2 levels (exercises probe_level_steps).
-# Each score set also stores every episode's final pelvis x: the equality tests compare trajectories.
-# Wall time, measured before / after this change with a PPO training on both cores: 142 / 141 s (--workers 1).
+# score from level 2 (not 28/40, where barely trained policies all score alike), probes with a one-episode
+# schedule of 2 levels (exercises probe_level_steps). Each score set stores every episode's final pelvis x, so the
+# equality tests compare trajectories.
 SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollout=16, score_episodes=1,
                n_test=3, tpe_trials=3, tpe_startup=2, K_d2=3, K_d3=6, ges_max_rounds=2, ges_target_coverage=0.95,
                ges_probes=2, ges_probe_pool=50, ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
                probe_level_steps=(2,))
 
-# quick: every table and figure in <= 2 h on this 2-core machine (issue 17, item 5), re-planned on the rates
-# measured 2026-11-25 (TRAIN_RATE, SCORE_RATE above; `python run_all.py --preset quick --plan`): 1.99 h with GES
-# at its round cap. The earlier plan (400k PPO steps, 15k x 3 rounds, F 6, 27 test designs, Fig. 7 at K 1, 3, 6)
-# was 1.97 h at the old rates and is 2.81 h at the measured ones. What 2 h buys, stage by stage (hours on 2 cores):
-#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 300k steps. The cost
-#     of the cut: issue 16's lr_cap runs reach training level 1.4-4.1 (obstacle) and 7-21 (ramp) at 300k, against
-#     2.0-8.5 and 9.5-27.4 at 400k (docs/ppo_protocol/lr_cap/*/seed*/log.csv).
-#   - GES 0.46 + Table III 0.31 + Fig. 7 0.05: specialists start from their cell's e2e MLP (ges_warm_start;
-#     ours: from random init they would get ~30k steps each) and run train / probe / refit until 95 % coverage or
-#     3 rounds (10k steps each, F = 5 probes, each a 20-episode J). Probes are most of GES's cost (5 x 9.4 core-s
-#     per specialist and round against 14 core-s of training), so Fig. 7 runs K = 1 and 3 (GES's own run), not
-#     the paper's 1-6 (the overnight and paper presets do).
-#   - Table II 0.52: 20 test designs per cell and method (the paired CI of GES - e2e MLP in obstacle D2 has
-#     half-width ~1.96 sd / sqrt(n): +-2.3 cm at the slewed-servo quick run's sd of 5.2 cm; 27 designs for +-2 cm
-#     would add 0.12 h), and TPE design searches of 6 trials (3 random); cost 0.06: one per-design BO trial,
-#     extrapolated to 6.
+# quick: every table and figure in <= 2 h on a 2-core machine, planned on the measured rates below
+# (`python run_all.py --preset quick --plan`: 2.00 h with GES at its round cap). What 2 h buys (hours on 2 cores):
+#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 300k steps;
+#   - GES 0.46 + Table III 0.31 + Fig. 7 0.05: specialists warm-start from their cell's e2e MLP (ges_warm_start;
+#     ours: from random init they would get ~30k steps each), then train / probe / refit until 95 % coverage or
+#     3 rounds (10k steps each, F = 5 probes, each a 20-episode J). Probes are most of GES's cost, so Fig. 7
+#     runs K = 1 and 3 (GES's own run), not the paper's 1-6 (overnight and paper do);
+#   - Table II 0.52: 20 test designs per cell and method (paired CI of GES - e2e MLP ~+-2.3 cm at an sd of
+#     5 cm), TPE design searches of 6 trials (3 random); cost 0.06: one per-design BO trial, extrapolated to 6.
 # ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
-# won, so its growth per round is set by F / n_init (`python ges.py --sweep`). On the planted landscape, MC
-# coverage after 3 rounds with F = 6 (seeds 0, 1, 2), from 12 %: n_init 2: 16-25 % in D2, 26-36 % in D3; n_init
-# 50: 12-15 %, flat, as in the old quick's real runs (n_init 50, F 4, 2 rounds: 17-42 %). F = 16: 32-50 % and
-# 41-55 %, at 2.7x the probe cost. Reaching 95 % takes ~100 probe J per specialist in D2 and ~200 in D3 (n_init
-# 2, F 8-16: 8-20 rounds), ~4,600 J for 34 specialists: 6 h of probes alone at the measured rate, so quick
-# reports each run's coverage at its cap, and the overnight preset runs GES to the stopping rule. A cheaper probe
-# score was measured and rejected (BISECTION).
+# won, so growth per round is set by F / n_init (`python ges.py --sweep`, planted landscape): n_init 2 grows
+# 12 % -> 16-25 % (D2) in 3 rounds with F = 6, n_init 50 stays flat. Reaching 95 % takes ~100 probe J per
+# specialist in D2 and ~200 in D3: hours of probes, so quick reports each run's coverage at its cap.
 QUICK = Preset("quick", ppo_steps=300_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, K_d2=3, K_d3=6, ges_max_rounds=3,
                ges_target_coverage=0.95, ges_probes=5, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
                ges_fps_pool=10_000, ksens_K=(1, 3),
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True)
 
-# overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table
-# and figure, on 2 cores overnight: `--plan` gives 28.2 h with every GES run at its 20-round cap (18.8 h at
-# the old rates), an upper bound: on the planted landscape n_init 2, F 16 stops after 8-11 rounds in D2 and
-# 9-20 in D3 (`ges.py --sweep`).
-# 1M-step policies (issue 16: ramp J 27.4 deg at 1 M with the spread start), 30k steps per specialist and round,
-# 50 test designs (paired CI half-width ~1.4 cm in obstacle D2 at sd 5.2 cm), Fig. 7 at K = 1-6.
+# overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table and
+# figure: `--plan` gives 28.2 h with every GES run at its 20-round cap, an upper bound (on the planted landscape
+# n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3). 1 M-step policies, 30k steps per specialist and
+# round, 50 test designs (paired CI ~+-1.4 cm at an sd of 5 cm), Fig. 7 at K = 1-6.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
                    score_episodes=20, n_test=50, tpe_trials=12, tpe_startup=6, K_d2=3, K_d3=6, ges_max_rounds=20,
                    ges_target_coverage=0.95, ges_probes=16, ges_probe_pool=2000, ges_init_designs=2,
@@ -357,11 +336,8 @@ OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo
                    table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True)
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
-# PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For big
-# machines: --workers uses every core. Work at the quick preset's rates: PPO 10 x 20M + 45 specialists x
-# <= 20 rounds x 1M + 40 BO trials x 20M <= 1.9 G steps (~6 days at 3,500 steps/s); probes 45 x 20 x 100 J x
-# 2.9 core-s ~ 1.5 days on 2 cores; test designs 24 x 1000 J x 2.9 core-s ~ 0.4 day: ~8-9 days on 2 cores.
-# At today's rates (`--plan`, GES at its 20-round cap): ~1,050 core-hours, ~22 days on 2 cores.
+# PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For a cluster or a big
+# machine: `--plan` gives ~1,050 core-hours (~22 days on 2 cores).
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
                score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
                ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
@@ -371,18 +347,15 @@ PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_env
 PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
 
-# --- what a preset costs (issue 17, item 5): the arithmetic behind every preset's wall time, in code ---------
-# Per-core rates in control steps/s as run_all runs its jobs: one single-process job per core, both cores busy,
-# default simulator (issue 14). Measured on this VM on 2026-11-25 with nothing else running, two jobs side by side
-# (as `python run_all.py --rates` does): PPO training with the quick preset's batch 734 (e2e MLP) and 674 (e2e
-# MoE) steps/s; the 20-episode J of e2e MLPs trained 1 M steps (issue 16's lr_cap, obstacle D2, seeds 0 and 1;
-# --rates scores its own briefly trained policy, a lower bound) 10.6 and 8.2 s per design (mean 9.4 s: 560 played
-# steps/s at SCORE_PLAYED). The earlier 900 / 890 came from one job on both cores (issue 16's screen,
-# `--probe-agreement`) and made the quick plan 1.4x too short.
+# --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
+# Per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores busy),
+# measured by `python run_all.py --rates` (2026-11-25, previous robot): PPO training at the quick preset's batch,
+# and the 20-episode J of trained e2e MLPs (560 played steps/s at SCORE_PLAYED). Rates measured with one job on both
+# cores made the plan 1.4x too short.
 TRAIN_RATE, SCORE_RATE = 700.0, 560.0
 # Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
-# 0.52, 0.67, 0.65, 0.80 (mean 0.66) for four e2e MLPs at 1 M steps on issue 16's 12 protocol designs
-# (obstacle, from level 28), measured 2026-11-25. The step counts below stay those of every episode.
+# 0.52-0.80 (mean 0.66) for four e2e MLPs at 1 M steps on 12 held-out designs (obstacle, from level 28). The step
+# counts below stay those of every episode.
 SCORE_PLAYED = 0.66
 
 
@@ -586,9 +559,7 @@ class Progress:
 
 
 class Throttled:
-    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds. ppo.train
-    prints the mean return of the last 100 episodes as '+nan' until an episode ends (all of smoke's trainings):
-    shown as '-'."""
+    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds."""
 
     def __init__(self, prefix: str, every: float = 30.0):
         self.prefix, self.every, self.last = prefix, every, 0.0
@@ -596,7 +567,7 @@ class Throttled:
     def __call__(self, text: str):
         if time.time() - self.last >= self.every:
             self.last = time.time()
-            say(f"    {self.prefix} " + re.sub(r"return\s+[+-]?nan", "return        -", text))
+            say(f"    {self.prefix} {text}")
 
 
 _DASK_CLIENTS: dict = {}
@@ -905,7 +876,7 @@ class CellJob:
 
 @dataclass
 class ScoreSet(CellJob):
-    """One score set of the test designs as a job of the run's executor [ours, issue 17 item 3]: a method's J on
+    """One score set of the test designs as a job of the run's executor [ours]: a method's J on
     its task/space's test designs ("design": the baseline policy on the baseline design; "ges": the GES run
     `ges_run`, default the cell's main run), kept in scores/<key>.json. A job scores in its own process
     (workers=1); J does not depend on that (ballu.score), so any executor gives the same numbers."""
@@ -1088,7 +1059,7 @@ def stage_cost(run: Run) -> dict:
     machine, same trial count, on the preset's cost task/space (paper: 3D). If cost_trials < tpe_trials, BO's
     cost is the measured mean per trial x tpe_trials (said so in the report).
 
-    Both sides are counted in core-seconds under one layout [ours, issue 17]: every job (a policy's training,
+    Both sides are counted in core-seconds under one layout [ours]: every job (a policy's training,
     a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
     once as there are workers, and is timed where it runs. The paper compares wall hours on its machine; with
     jobs of unequal width (before: a BO trial stepping its env on both cores, GES's jobs sharing them) wall
@@ -1126,8 +1097,8 @@ def stage_cost(run: Run) -> dict:
             "unit": "core-s"}
 
 
-# --- the probe score against the paper's J (issue 17, item 1; not a stage: run by the lead when the CPU is free) -
-PROBE_BAR = {"same_winner_pct": 80.0, "spearman": 0.9}   # issue 17's bar for using a cheaper probe score in GES
+# --- the probe score against the paper's J (not a stage: a measurement, docs/probe_agreement) ----------------
+PROBE_BAR = {"same_winner_pct": 80.0, "spearman": 0.9}   # the bar for using a cheaper probe score in GES
 
 
 def probe_winners(J: np.ndarray) -> np.ndarray:
@@ -1187,7 +1158,7 @@ def probe_agreement(ckpts: list, task: str = "obstacle", n_designs: int = 20, le
 
 
 def probe_agreement_text(r: dict) -> str:
-    """The measurement in a few lines, against issue 17's bar."""
+    """The measurement in a few lines, against PROBE_BAR."""
     K, n = len(r["ckpts"]), len(r["designs"])
     ok = r["same_winner_pct"] >= PROBE_BAR["same_winner_pct"] and r["spearman"] >= PROBE_BAR["spearman"]
     full_s, probe_s = r["seconds"]["full"], r["seconds"]["probe"]
@@ -1201,7 +1172,7 @@ def probe_agreement_text(r: dict) -> str:
         + (f"{r['spearman']:.3f}" if np.isfinite(r["spearman"]) else "undefined (one way scored every pair alike)")
         + f" (bar >= {PROBE_BAR['spearman']})",
         f"  wall time: full J {full_s:.0f} s, probe J {probe_s:.0f} s ({full_s / max(probe_s, 1e-9):.1f}x faster)",
-        f"  issue 17's bar: {'met' if ok else 'NOT met'}"]
+        f"  the bar (PROBE_BAR): {'met' if ok else 'NOT met'}"]
         + ([f"  ceiling: the full J on designs moved by +-{100 * r['jitter']:g} % of each range agrees with the "
             f"full J on {r['ceiling']['same_winner_pct']:.1f} % of winners, Spearman {r['ceiling']['spearman']:.3f}"]
            if "ceiling" in r else []))
@@ -1579,7 +1550,8 @@ def report_header(run: Run, manifest: dict) -> list:
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
             f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
             + {"task": "at uniform levels up to the score's start level on the ramp, at level 0 on the obstacle "
-                       "(ours, issue 16)", "spread": "at uniform levels up to the score's start level (ours, issue 16)",
+                       "(ours, the PPO protocol)",
+               "spread": "at uniform levels up to the score's start level (ours, the PPO protocol)",
                "zero": "at level 0"}[p.ppo_start] + f"); GES {p.ges_round_steps:,} steps per "
             f"specialist per round, <= {p.ges_max_rounds} rounds, "
             + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
@@ -1677,7 +1649,7 @@ def report_ges_runs(ges_runs: dict) -> list:
 def report_cost(cost: dict) -> list:
     extrapolated = (f" (per-design BO: {cost['bo_trials_run']} trials measured, extrapolated to {cost['trials']})"
                     if cost["extrapolated"] else "")
-    unit = cost.get("unit", "s")   # core-s since issue 17's fair layout; older results hold wall seconds
+    unit = cost.get("unit", "s")   # core-s since the fair layout; older results hold wall seconds
     rows = [["per-design BO", f"{cost['bo_s']:.0f} {unit}", f"{PAPER_COST['bo_h']:.0f} h"],
             ["GES co-design (warm-start e2e MLP + stage 1 + TPE with router)",
              f"{cost['ges_s']:.0f} {unit} ({cost.get('ges_warm_start_s', 0):.0f} + {cost['ges_stage1_s']:.0f} + "

@@ -296,7 +296,7 @@ class TPE:
         """Up to n next designs that are random startup draws whatever the pending trials return. Draw i
         depends only on (seed, i) and a pending trial can only delay the end of startup, so evaluating these in
         parallel gives exactly the trials of the sequential loop. [ours] For run_all's cost stage: per-design
-        BO's trials run one per core, as every other training job does (issue 17, a fair cost layout)."""
+        BO's trials run one per core, as every other training job does (a fair cost layout)."""
         n_ok = sum(t.ok for t in self.trials)
         m = max(0, min(n, self.config.n_startup - n_ok))
         return [self._startup_point(len(self.trials) + j) for j in range(m)]

@@ -21,8 +21,9 @@ from dataclasses import replace
 import numpy as np
 
 from ballu import (BALLOON, BASELINE, D2_CENTRE, HARDWARE_DRAG, JOINT_LIMITS, JOINTS, MAX_LEVEL, PREVIOUS_ROBOT,
-                   TABLE_I_HIGH, TABLE_I_LOW, BalluConfig, BalluEnv, InProcess, PumpGait, check_design, level_score,
-                   plain_call, score, shared_pool, stand, surface_height, task_geometry, to_base_frame)
+                   TABLE_I_HIGH, TABLE_I_LOW, BalluConfig, BalluEnv, InProcess, PumpGait, check_design,
+                   level_score, plain_call, score, shared_pool, stand, surface_height, task_geometry,
+                   to_base_frame)
 
 def random_actions(rng, n: int, steps: int, hold=(1, 10)) -> np.ndarray:
     """Open-loop test actions (n, steps, 2): each leg holds a value for 1-10 control steps; half of the values
@@ -201,8 +202,8 @@ def _search_level(design, task, cfg, rng, pop, iters, workers):
     (two populations in a row, the second refit on the first) bisect between the highest cleared and the
     lowest failed level. At each level `pop` gaits play one
     episode: half drawn around a cross-entropy mean (refit on the gaits that got furthest), a quarter around
-    the best gait that cleared so far, a quarter uniform; the first population holds the pump gaits. Returns (level, best gait params); -1 if not even
-    level 0 was cleared."""
+    the best gait that cleared so far, a quarter uniform; the first population holds the pump gaits. Returns
+    (level, best gait params); -1 if not even level 0 was cleared."""
     up = task_geometry(task)["up"]
     ok, fail, best, jump, retry, first = -1, MAX_LEVEL + 1, None, 1, None, True
     mean, std = np.full(5, 0.5), np.full(5, 0.35)
