@@ -11,8 +11,8 @@ hands any design to one specialist, so an outer search (TPE) scores designs with
 Equation numbers count the numbered equations of paper/ges_paper.tex in order:
   (5) space-filling objective of the initialisation, (6) probe argmax [eq:probe], (7) refit [eq:refit],
   (8) unnormalised f_k, (9) MC coverage c-hat, (10) density router [eq:router_select].
-Provenance of every choice is marked in its docstring: "paper", "facts" (shared/ballu_facts.md, i.e. the
-authors' code read as facts) or "ours" (the paper and the facts are silent).
+Provenance of every choice is marked in its docstring: [paper], [facts] (docs/facts.md, the authors' code read
+as facts) or [ours] (the paper and the facts are silent).
 
 This module knows nothing about BALLU or PPO. It takes two plain callables (picklable, so that the K
 specialists can run in a process pool):
@@ -28,6 +28,10 @@ specialists can run in a process pool):
                  run repeats an interrupted round). Its format is the trainer's business.
     score_fn(k, ckpt, designs) -> (n,) array of scores, higher is better
         designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
+
+Read top to bottom: 1. the design box, 2. settings, 3. randomness, 4. territories (f_k, coverage, router,
+refit), 5. initialisation, 6. executors, 7. state and results, 8. the GES loop (Alg. 1), 9. the synthetic
+landscape, figures and command line.
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn),
 plot_territories(history, path). `python ges.py --bench` times coverage/routing, `python ges.py --demo OUT`
@@ -51,12 +55,12 @@ from typing import Callable
 import numpy as np
 
 # ---------------------------------------------------------------------------------------------------------
-# The design space: a box of named bounds (paper Sec. IV-B works in the normalised box [0, 1]^d)
+# 1. The design space: a box of named bounds, worked in the normalised box [0, 1]^d [paper, Sec. IV-B]
 # ---------------------------------------------------------------------------------------------------------
 @dataclass
 class Box:
     """An axis-aligned box of named design parameters, physical units. GES works in the unit cube [0,1]^d
-    (paper Sec. IV-B: "normalized design space"), mapped linearly per axis. What a design means (a robot's
+    [paper, Sec. IV-B: "normalized design space"], mapped linearly per axis. What a design means (a robot's
     legs, buoyancy, springs) is the caller's business: ballu.py builds its D2/D3 as Boxes' names and bounds."""
     names: tuple
     lows: tuple
@@ -126,7 +130,7 @@ class Box:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Settings
+# 2. Settings
 # ---------------------------------------------------------------------------------------------------------
 INIT_METHODS = ("grid", "random", "fps", "fps+lloyd")
 ROUTERS = ("density", "oracle")
@@ -135,22 +139,22 @@ ROUTERS = ("density", "oracle")
 @dataclass
 class GESConfig:
     """GES settings. Every default is the paper's or the facts' value (source in the comment)."""
-    K: int = 3                        # specialists: 3 in D2, 6 in D3 (facts; paper Sec. V)
-    n_probe: int = 100                # F probes per round (facts; paper Alg. 1 names F)
-    probe_pool: int = 2000            # uniform points the probes are picked from (facts)
+    K: int = 3                        # specialists: 3 in D2, 6 in D3 [facts; paper Sec. V]
+    n_probe: int = 100                # F probes per round [facts; paper Alg. 1 names F]
+    probe_pool: int = 2000            # uniform points the probes are picked from [facts]
     band_lo: float = -2.5             # probe band on max_k log f_k (eq. 8): -2.5 < . < -0.5, i.e. Mahalanobis
-    band_hi: float = -0.5             #   distance 1..2.24 around the 2-sigma border (facts)
-    n_init_designs: int = 50          # designs per specialist seeding eta_k (facts)
-    n_mc: int = 10_000                # N_mc MC coverage points (paper Sec. V-A)
-    tau: float = math.exp(-2)         # coverage threshold on f_k, the 2-sigma contour (paper eq. 8)
-    target_coverage: float = 0.95     # stop criterion (paper Sec. IV-B)
-    init_coverage: float = 0.12       # sigma_0 calibrated to this MC coverage (paper Sec. V-A)
-    max_rounds: int = 20              # hard stop (facts)
-    lloyd_iters: int = 12             # T Lloyd iterations (facts; paper Sec. IV-B names T)
-    fps_pool: int = 10_000            # uniform pool for FPS and Lloyd (facts)
-    var_floor: float = 1e-4           # per-axis variance floor (1 % of the range)^2 in unit coords (facts)
-    init: str = "fps+lloyd"           # centre initialisation (paper Sec. IV-B and Table III)
-    router: str = "density"           # outer-loop router: 'density' (paper eq. 10) or 'oracle' (facts, QUIRK)
+    band_hi: float = -0.5             #   distance 1..2.24 around the 2-sigma border [facts]
+    n_init_designs: int = 50          # designs per specialist seeding eta_k [facts]
+    n_mc: int = 10_000                # N_mc MC coverage points [paper, Sec. V-A]
+    tau: float = math.exp(-2)         # coverage threshold on f_k, the 2-sigma contour [paper, eq. 8]
+    target_coverage: float = 0.95     # stop criterion [paper, Sec. IV-B]
+    init_coverage: float = 0.12       # sigma_0 calibrated to this MC coverage [paper, Sec. V-A]
+    max_rounds: int = 20              # hard stop [facts]
+    lloyd_iters: int = 12             # T Lloyd iterations [facts; paper Sec. IV-B names T]
+    fps_pool: int = 10_000            # uniform pool for FPS and Lloyd [facts]
+    var_floor: float = 1e-4           # per-axis variance floor (1 % of the range)^2 in unit coords [facts]
+    init: str = "fps+lloyd"           # centre initialisation [paper, Sec. IV-B and Table III]
+    router: str = "density"           # outer-loop router: 'density' [paper, eq. 10] or 'oracle' [facts, QUIRK]
 
     def __post_init__(self):
         def need(name, ok, allowed):
@@ -175,7 +179,7 @@ class GESConfig:
 
 # ---------------------------------------------------------------------------------------------------------
 # Randomness: every draw comes from a generator derived from (seed, stream, round, k), so results do not
-# depend on the order in which specialists run (ours).
+# depend on the order in which specialists run [ours].
 # ---------------------------------------------------------------------------------------------------------
 INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE = range(5)  # stream ids
 
@@ -190,12 +194,12 @@ def seed_for(seed: int, *keys: int) -> int:
 
 def mc_points(seed: int, n: int, d: int) -> np.ndarray:
     """The N_mc uniform points of eq. 9. The same points every round (common random numbers), so the coverage
-    history is not jittered by MC noise (ours)."""
+    history is not jittered by MC noise [ours]."""
     return rng_for(seed, COVERAGE).random((n, d))
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Gaussian territories in the unit cube: f_k, coverage, density, router
+# 3. Gaussian territories in the unit cube: f_k, coverage, density, router
 # ---------------------------------------------------------------------------------------------------------
 def log_f(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """log f_k(x) = -sum_d (x_d - mu_kd)^2 / (2 sigma_kd^2), the unnormalised density of eq. 8. (n, K)."""
@@ -216,22 +220,22 @@ def log_density(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 
 
 def route(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Density router (paper eq. 10): k* = argmax_k N(x | mu_k, Sigma_k), ties to the lower index. The argmax
+    """Density router [paper, eq. 10]: k* = argmax_k N(x | mu_k, Sigma_k), ties to the lower index. The argmax
     is the same in unit and physical coordinates (the Jacobian is common to all k)."""
     return np.argmax(log_density(np.atleast_2d(x), mu, sigma), axis=1)
 
 
 def refit(eta: np.ndarray, var_floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-    """Refit (paper eq. 7): mu = mean(eta), Sigma = diagcov(eta), with the variance floored at var_floor
-    (facts) so a territory never collapses to a line. Population variance (ddof=0, numpy's default; ours)."""
+    """Refit [paper, eq. 7]: mu = mean(eta), Sigma = diagcov(eta), with the variance floored at var_floor
+    [facts] so a territory never collapses to a line. Population variance (ddof=0, numpy's default; ours)."""
     return eta.mean(axis=0), np.sqrt(np.maximum(eta.var(axis=0), var_floor))
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Initialisation (paper Sec. IV-B, Table III; facts): centres, sigma_0, initial designs
+# 4. Initialisation [paper, Sec. IV-B, Table III; facts]: centres, sigma_0, initial designs
 # ---------------------------------------------------------------------------------------------------------
 def farthest_point_sampling(pool: np.ndarray, K: int, rng: np.random.Generator) -> np.ndarray:
-    """FPS (paper): start at a random pool point, then repeatedly add the pool point farthest from the
+    """FPS [paper]: start at a random pool point, then repeatedly add the pool point farthest from the
     centres chosen so far. Greedy 2-approximation of the min-max objective eq. 5."""
     chosen = [int(rng.integers(len(pool)))]
     dist = np.linalg.norm(pool - pool[chosen[0]], axis=1)
@@ -242,9 +246,9 @@ def farthest_point_sampling(pool: np.ndarray, K: int, rng: np.random.Generator) 
 
 
 def lloyd(centers: np.ndarray, pool: np.ndarray, iters: int) -> np.ndarray:
-    """Lloyd relaxation (paper): move each centre to the centroid of its Voronoi cell of the pool. FPS picks
+    """Lloyd relaxation [paper]: move each centre to the centroid of its Voronoi cell of the pool. FPS picks
     the box's corners and edges; Lloyd pulls the centres in so they tile the box evenly. An empty cell keeps
-    its centre (ours)."""
+    its centre [ours]."""
     c = centers.copy()
     for _ in range(iters):
         owner = np.argmin(((pool[:, None, :] - c[None]) ** 2).sum(-1), axis=1)
@@ -283,7 +287,7 @@ def init_centers(method: str, K: int, d: int, rng: np.random.Generator, pool_siz
 
 def calibrate_sigma(mu: np.ndarray, points: np.ndarray, target: float = 0.12, tau: float = math.exp(-2),
                     iters: int = 60) -> np.ndarray:
-    """sigma_0 (facts): isotropic per unit axis, proportional to 1/K^(1/d) (range/K^(1/d) in physical units),
+    """sigma_0 [facts]: isotropic per unit axis, proportional to 1/K^(1/d) (range/K^(1/d) in physical units),
     scaled by bisection until the MC coverage (eq. 9, on `points`) reaches `target` (12 %, paper Sec. V-A).
     Coverage is monotone in the scale, so bisection returns the smallest scale reaching the target."""
     K, d = mu.shape
@@ -298,13 +302,13 @@ def calibrate_sigma(mu: np.ndarray, points: np.ndarray, target: float = 0.12, ta
 
 
 def sample_clipped(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
-    """n draws from N(mu, diag sigma^2) clipped to the unit box (facts: 'clipped to the box')."""
+    """n draws from N(mu, diag sigma^2) clipped to the unit box [facts: 'clipped to the box']."""
     return np.clip(mu + sigma * rng.standard_normal((n, len(mu))), 0.0, 1.0)
 
 
 def sample_probes(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n_probe: int = 100,
                   pool_size: int = 2000, band: tuple = (-2.5, -0.5)) -> np.ndarray:
-    """Border probes (paper Alg. 1 SampleBorder; facts): pool_size uniform points, keep those whose
+    """Border probes [paper, Alg. 1 SampleBorder; facts]: pool_size uniform points, keep those whose
     g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first). Outermost
     first and the top-up below follow the authors' code (scripts/pec, not spelled out in the facts file):
     it is what makes territories grow at a useful pace (random in-band picks grow them ~sqrt(rounds)).
@@ -341,7 +345,7 @@ class GaussianSampler:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Executors: the K specialists' train and probe tasks are independent (paper Sec. V-D)
+# 5. Executors: the K specialists' train and probe tasks are independent [paper, Sec. V-D]
 # ---------------------------------------------------------------------------------------------------------
 class SerialExecutor(Executor):
     """Runs each task inline at submit(): for debugging and tests. Same results as any other Executor."""
@@ -374,13 +378,13 @@ def _map_all(executor: Executor, fn: Callable, arg_lists: list) -> tuple[list, l
 
 
 # ---------------------------------------------------------------------------------------------------------
-# State, history, result (all JSON; floats round-trip exactly through json's repr)
+# 6. State, history, result (all JSON; floats round-trip exactly through json's repr)
 # ---------------------------------------------------------------------------------------------------------
 STATE_FILE, HISTORY_FILE, CKPT_DIR = "state.json", "history.json", "ckpt"
 
 
 def _atomic_json(path: str, obj) -> None:
-    """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state (ours)."""
+    """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state [ours]."""
     tmp = f"{path}.tmp{os.getpid()}"
     with open(tmp, "w") as fh:
         json.dump(obj, fh)
@@ -491,14 +495,14 @@ def load_result(run_dir: str) -> GESResult:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# The GES loop (paper Alg. 1)
+# 7. The GES loop [paper, Alg. 1]
 # ---------------------------------------------------------------------------------------------------------
 def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points) -> dict:
     """One Train-Probe-Refit round (Alg. 1 lines 7-19). Returns the new state; `state` is not modified."""
     t, K = state["round"], config.K
     mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
     ckpt_out = [os.path.join(CKPT_DIR, f"spec{k}_round{t:02d}.ckpt") for k in range(K)]
-    # Train (Alg. 1 lines 8-11): each specialist on its own territory, warm-started (paper).
+    # Train (Alg. 1 lines 8-11): each specialist on its own territory, warm-started [paper].
     samplers = [GaussianSampler(mu[k], sigma[k], space, seed_for(seed, TRAIN, t, k)) for k in range(K)]
     _, train_s = _map_all(executor, train_fn, [(k, t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
                                                 if state["ckpt"][k] else None, os.path.join(run_dir, ckpt_out[k]))
@@ -516,7 +520,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     if scores.shape != (K, len(probes)) or np.isnan(scores).any():
         raise ValueError(f"score_fn must return {len(probes)} non-NaN scores per specialist, got shape "
                          f"{scores.shape} with {int(np.isnan(scores).sum())} NaN")
-    winner = np.argmax(scores, axis=0)  # ties -> lower index (facts)
+    winner = np.argmax(scores, axis=0)  # ties -> lower index [facts]
     # Refit (Alg. 1 line 17, eq. 7) each territory to all the designs it holds.
     eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
     fits = [refit(e, config.var_floor) for e in eta]
@@ -534,7 +538,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
 def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
             config: GESConfig | None = None, seed: int = 0, executor: Executor | None = None,
             progress: Callable[[str], None] | None = print) -> GESResult:
-    """Run (or resume) GES until MC coverage >= target or max_rounds (paper Alg. 1).
+    """Run (or resume) GES until MC coverage >= target or max_rounds [paper, Alg. 1].
 
     The state is saved atomically after every completed round; calling again on the same run_dir resumes at
     the last completed round and ends with exactly the result of an uninterrupted run (all randomness derives
@@ -570,7 +574,7 @@ def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Routed evaluator for the outer search (paper Sec. IV-C)
+# 8. Routed evaluator for the outer search [paper, Sec. IV-C]
 # ---------------------------------------------------------------------------------------------------------
 class RoutedEvaluator:
     """J(theta) for TPE: 'density' scores theta with the specialist of highest Gaussian density (paper
@@ -603,7 +607,7 @@ def routed_evaluator(result: GESResult, score_fn: Callable, router: str | None =
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Figures
+# 9. Figures
 # ---------------------------------------------------------------------------------------------------------
 COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
 
@@ -686,7 +690,7 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, --demo)
+# 10. Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, --demo)
 # ---------------------------------------------------------------------------------------------------------
 @dataclass(eq=False)
 class PlantedLandscape:
@@ -776,7 +780,7 @@ def sweep(pairs=((50, 100), (50, 16), (50, 4), (16, 32), (8, 16), (8, 8))):
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Benchmark
+# 11. Benchmark
 # ---------------------------------------------------------------------------------------------------------
 def _best_time(fn, repeats: int = 7, loops: int = 5) -> float:
     best = float("inf")

@@ -32,6 +32,26 @@ from experiments import ballu_capability, ppo_ballu, ppo_protocol
 from ballu import BASELINE, BalluConfig, BalluEnv
 from tpe import TPE, Parzen, TPEConfig, bandwidths, build_parzen, n_good, optimize, recency_weights
 
+def read_json(path):
+    with open(path) as f:
+        return json.load(f)
+
+
+def read_text(path):
+    with open(path) as f:
+        return f.read()
+
+
+def read_bytes(path, n: int = -1) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(n)
+
+
+def write_bytes(path, data: bytes):
+    with open(path, "wb") as f:
+        f.write(data)
+
+
 # ==========================================================================================================
 # ballu.py: physics sanity, lanes, determinism, curriculum, bad input
 # ==========================================================================================================
@@ -1257,7 +1277,7 @@ def test_ges_synthetic_trainer_really_improves(tmp_path):
     land.train(0, 1, sampler, str(tmp_path / "a.ckpt"), str(tmp_path / "b.ckpt"))  # warm start continues
     after = land.score(0, str(tmp_path / "b.ckpt"), designs).mean()
     assert before < mid < after
-    assert np.argmax(json.load(open(tmp_path / "b.ckpt"))["p"]) == 0  # learnt the behaviour of site 0
+    assert np.argmax(read_json(tmp_path / "b.ckpt")["p"]) == 0  # learnt the behaviour of site 0
 
 
 def test_ges_synthetic_reaches_coverage_and_specialises(synthetic_run):
@@ -1306,7 +1326,7 @@ def test_ges_result_and_history_files(synthetic_run, tmp_path):
     again = _run(res.run_dir)  # a finished run dir returns its result without training again
     assert again.rounds == res.rounds and again.history == res.history
     # each round's tasks were timed where they ran (run_all's cost stage adds them up as core-seconds)
-    spent = json.load(open(os.path.join(res.run_dir, "state.json")))["task_seconds"]
+    spent = read_json(os.path.join(res.run_dir, "state.json"))["task_seconds"]
     assert len(spent) == res.rounds and all(len(r["train"]) == len(r["probe"]) == 3 for r in spent)
     assert res.task_seconds == pytest.approx(sum(sum(r["train"]) + sum(r["probe"]) for r in spent))
     assert res.task_seconds > 0
@@ -1402,7 +1422,7 @@ def test_ges_train_contract_warm_start_territory_and_ties(tmp_path):
     hist, seeds = res.history["rounds"], set()
     for r in range(3):
         for k in range(3):
-            rec = json.load(open(tmp_path / "ckpt" / f"spec{k}_round{r:02d}.ckpt"))
+            rec = read_json(tmp_path / "ckpt" / f"spec{k}_round{r:02d}.ckpt")
             assert (rec["k"], rec["round"]) == (k, r)
             prev = str(tmp_path / "ckpt" / f"spec{k}_round{r - 1:02d}.ckpt")
             assert rec["ckpt_in"] == (None if r == 0 else prev)
@@ -1693,7 +1713,7 @@ def test_tpe_resumed_optimize_equals_uninterrupted(tmp_path, stop_after):
     path = str(tmp_path / "resumed.json")
     with pytest.raises(Interrupt):
         optimize(crashing, *box, 40, seed=5, path=path, verbose=False)
-    assert len(json.load(open(path))["trials"]) == stop_after
+    assert len(read_json(path)["trials"]) == stop_after
     resumed = optimize(flaky, *box, 40, seed=5, path=path, verbose=False)
     assert records(resumed) == records(full)
     assert any(not t.ok for t in full.trials)  # the resume covered failed trials
@@ -1779,7 +1799,7 @@ def test_tpe_failing_objective_becomes_failed_trial(tmp_path):
     assert len(study.trials) == 40 and failed and len(failed) < 40
     assert {t.error.split(":")[0] for t in failed} <= {"RuntimeError", "non-finite objective value nan"}
     assert study.best.ok and study.best.y == min(t.y for t in study.trials if t.ok)
-    saved = json.load(open(path))["trials"]  # failed trials are kept in the file
+    saved = read_json(path)["trials"]  # failed trials are kept in the file
     assert [d["y"] is None for d in saved] == [not t.ok for t in study.trials]
 
     always_fails = optimize(lambda x: 1 / 0, [0], [1], 5, verbose=False)
@@ -1879,7 +1899,7 @@ def _report_numbers(path):
     """REPORT.md without the lines that hold wall times, compute times (core-s) and what follows from them (the
     cost reduction), or the commit / code hash (which change when someone edits the tree during the test;
     manifest checks cover them)."""
-    lines = open(path).read().splitlines()
+    lines = read_text(path).splitlines()
     return [ln for ln in lines if not re.search(r"wall|core-s|reduction|\b\d+ s\b|git commit", ln, re.I)]
 
 
@@ -1893,13 +1913,13 @@ def smoke_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
-    rep = open(os.path.join(smoke_run, "REPORT.md")).read()
+    rep = read_text(os.path.join(smoke_run, "REPORT.md"))
     for head in ("## Table I", "## Table II", "### Peaks found by TPE", "### Head-to-head", "## Table III",
                  "## K sensitivity", "## Computational cost", "## Figures", "## Wall time per stage"):
         assert head in rep, head
     assert "(36.9)" in rep and "(35.2)" in rep and "37 %" in rep          # paper numbers beside ours
     assert "nan" not in rep.lower() and " - (" not in rep                # every "ours" cell was measured
-    res = json.load(open(os.path.join(smoke_run, "results.json")))
+    res = read_json(os.path.join(smoke_run, "results.json"))
     assert set(res["stages"]) == set(run_all.STAGES) and all(v is not None for v in res["stages"].values())
     t2 = res["stages"]["table2"]
     for key, cell in t2["cells"].items():
@@ -1909,7 +1929,7 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
     assert all(np.isfinite(p["peak"]) and p["trials"] == run_all.SMOKE.tpe_trials for p in t2["peaks"].values())
     # numbers that tell runs apart: every score set keeps each episode's final pelvis x, all different (smoke's
     # untrained policies end short of the box, so their one-episode J is one level below the start for all)
-    sets = [json.load(open(f)) for f in glob.glob(os.path.join(smoke_run, "scores", "*.json"))]
+    sets = [read_json(f) for f in glob.glob(os.path.join(smoke_run, "scores", "*.json"))]
     final_x = [row for s in sets for row in s["final_x"]]
     assert all(len(row) == run_all.SMOKE.score_episodes for row in final_x)
     assert len({row[0] for row in final_x}) == len(final_x) == sum(len(s["scores"]) for s in sets)
@@ -1920,13 +1940,13 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
     assert 0.0 <= res["stages"]["figures"]["moe_gate_entropy"] <= 1.0 + 1e-9
     for f in SMOKE_FIGURES:
         p = os.path.join(smoke_run, "figures", f)
-        assert os.path.getsize(p) > 1000 and open(p, "rb").read(8) == b"\x89PNG\r\n\x1a\n", f
+        assert os.path.getsize(p) > 1000 and read_bytes(p, 8) == b"\x89PNG\r\n\x1a\n", f
     assert len(os.listdir(os.path.join(smoke_run, "figures", "curves"))) >= 2 + 4 + 3 + 1
     with open(os.path.join(smoke_run, "test_scores.csv")) as fh:
         rows = list(csv_module.DictReader(fh))
     assert len(rows) == 4 * run_all.SMOKE.n_test
     assert all(np.isfinite(float(r[m])) for r in rows for m in run_all.METHODS)
-    man = json.load(open(os.path.join(smoke_run, "manifest.json")))
+    man = read_json(os.path.join(smoke_run, "manifest.json"))
     assert man["preset"] == "smoke" and man["seed"] == 3
     assert man["budgets"]["ppo_steps"] == run_all.SMOKE.ppo_steps
 
@@ -1944,7 +1964,7 @@ def test_run_all_killed_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monk
         run_all.main(args)
     monkeypatch.delenv("RUN_ALL_FAIL_AT")
     assert run_all.main(args) == 0
-    a, b = (json.load(open(os.path.join(d, "results.json")))["stages"] for d in (smoke_run, out))
+    a, b = (read_json(os.path.join(d, "results.json"))["stages"] for d in (smoke_run, out))
     assert _numbers_only(a) == _numbers_only(b)
     mine, ref = raw_numbers(out), raw_numbers(smoke_run)   # every J and final x, GES state, TPE trial, policy
     assert mine.keys() == ref.keys() and [k for k in ref if mine[k] != ref[k]] == []
@@ -2033,12 +2053,12 @@ def raw_numbers(out: str) -> dict:
     (the standalone policies' policy.pt and every GES specialist's round checkpoints)."""
     nums = {}
     for f in sorted(glob.glob(os.path.join(out, "scores", "*.json"))):
-        nums[os.path.relpath(f, out)] = {k: json.load(open(f))[k] for k in ("scores", "final_x")}
+        nums[os.path.relpath(f, out)] = {k: read_json(f)[k] for k in ("scores", "final_x")}
     for f in sorted(glob.glob(os.path.join(out, "ges", "*", "state.json"))):
         nums[os.path.relpath(f, out)] = [{k: h[k] for k in ("coverage", "mu", "sigma", "probes_unit", "winner")}
-                                         for h in json.load(open(f))["history"]]
+                                         for h in read_json(f)["history"]]
     for f in sorted(glob.glob(os.path.join(out, "tpe", "*.json"))):
-        nums[os.path.relpath(f, out)] = [(t["x"], t["y"]) for t in json.load(open(f))["trials"]]
+        nums[os.path.relpath(f, out)] = [(t["x"], t["y"]) for t in read_json(f)["trials"]]
     for f in sorted(glob.glob(os.path.join(out, "**", "*.pt"), recursive=True)
                     + glob.glob(os.path.join(out, "ges", "*", "ckpt", "*.ckpt"))):
         weights = torch.load(f, weights_only=False)["policy"]
@@ -2271,14 +2291,14 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
     names = [name for name, *_ in run_all.baseline_jobs(run_all.Run(smoke_run, p, 3, 1))]
     steps = sum(ppo.load_checkpoint(os.path.join(smoke_run, "policies", n, "policy.pt"))["steps"] for n in names)
     assert steps == pl["baselines"]["ppo_steps"]
-    sets = [json.load(open(f)) for f in glob.glob(os.path.join(smoke_run, "scores", "*.json"))]
+    sets = [read_json(f) for f in glob.glob(os.path.join(smoke_run, "scores", "*.json"))]
     searches = [f for f in glob.glob(os.path.join(smoke_run, "tpe", "*.json")) if "per-design-bo" not in f]
     played = sum(len(row) for sc in sets for row in sc["final_x"]) * ep
-    played += sum(len(json.load(open(f))["trials"]) for f in searches) * p.score_episodes * ep
+    played += sum(len(read_json(f)["trials"]) for f in searches) * p.score_episodes * ep
     assert played == sum(v["score_steps"] for k, v in pl.items() if k != "cost")
     probed = sum(len(h["probes_unit"]) * len(h["mu"])   # per round, every specialist scores every probe
                  for f in glob.glob(os.path.join(smoke_run, "ges", "*", "state.json"))
-                 for h in json.load(open(f))["history"])
+                 for h in read_json(f)["history"])
     assert probed * len(p.probe_level_steps) * ep == sum(v["probe_steps"] for v in pl.values())   # all at the cap
     assert run_all.main(["--preset", "quick", "--plan"]) == 0
     assert "total" in capsys.readouterr().out
@@ -2308,8 +2328,8 @@ def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
 
     def damage(rel, how):
         path = os.path.join(out, rel)
-        data = open(path, "rb").read()
-        open(path, "wb").write(DAMAGES[how](data))
+        data = read_text(path, "rb")
+        write_bytes(path, DAMAGES[how](data))
         return path, data
 
     ges_dir = os.path.join("ges", "obstacle-d2-K3-fps-lloyd")
@@ -2324,7 +2344,7 @@ def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
         assert run_all.main(args) == 2, rel
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and all(w in err for w in words) and "weights_only" not in err, err
-        open(path, "wb").write(data)
+        write_bytes(path, data)
     redo = {os.path.join("stages", "table2.json"): "a JSON list",
             os.path.join("scores", "test-obstacle-d2-mlp.json"): "truncated",
             os.path.join("tpe", "obstacle-d2-ges.json"): "another format",
@@ -2339,7 +2359,7 @@ def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
     assert "stage table2: start" in said and "weights_only" not in said
     mine, ref = raw_numbers(out), raw_numbers(smoke_run)   # the redone parts are the same numbers
     assert mine.keys() == ref.keys() and [k for k in ref if mine[k] != ref[k]] == []
-    a, b = (json.load(open(os.path.join(d, "results.json")))["stages"] for d in (smoke_run, out))
+    a, b = (read_json(os.path.join(d, "results.json"))["stages"] for d in (smoke_run, out))
     assert _numbers_only(a) == _numbers_only(b)
 
 
@@ -2359,7 +2379,7 @@ def test_run_all_what_a_user_sees(smoke_run, capsys):
     pace = (200.0 + run_all.ETA_PRIOR_S) / (100.0 + run_all.ETA_PRIOR_S)   # ges took twice its plan
     assert run_all.run_eta(planned, {"ges": 200.0}, ["table2", "figures"]).startswith(
         f"whole run: eta {pace * 60:.0f}s") and f"x {pace:.2f}" in run_all.run_eta(planned, {"ges": 200.0}, ["x"])
-    rep = open(os.path.join(smoke_run, "REPORT.md")).read().splitlines() + [""]   # the file ends after a table
+    rep = read_text(os.path.join(smoke_run, "REPORT.md")).splitlines() + [""]   # the file ends after a table
     for i, line in enumerate(rep):
         if line.startswith("|") and not rep[i - 1].startswith("|"):
             assert rep[i - 1] == "", (i, line)
