@@ -1883,7 +1883,7 @@ SMOKE_FIGURES = ["fig1_strip_obstacle.png", "fig1_strip_ramp.png", "fig3_distrib
                  "fig8_design_sensitivity.png"] + [f"fig6_territories_{t}-{s}.png" for t in ("obstacle", "ramp")
                                                    for s in ("d2", "d3")]
 TIMING_FIELDS = {"seconds", "stage1_seconds", "stage1_core_s", "bo_measured_s", "bo_s", "ges_stage1_s", "ges_tpe_s",
-                 "ges_s", "reduction_pct"}
+                 "ges_s", "reduction_pct", "bo_trial_s", "ges_fixed_s", "ges_per_trial_s"}
 
 
 def _numbers_only(obj):
@@ -1897,10 +1897,10 @@ def _numbers_only(obj):
 
 def _report_numbers(path):
     """REPORT.md without the lines that hold wall times, compute times (core-s) and what follows from them (the
-    cost reduction), or the commit / code hash (which change when someone edits the tree during the test;
+    cost reduction, the break-even trial count), or the commit / code hash (which change when someone edits the tree during the test;
     manifest checks cover them)."""
     lines = read_text(path).splitlines()
-    return [ln for ln in lines if not re.search(r"wall|core-s|reduction|\b\d+ s\b|git commit", ln, re.I)]
+    return [ln for ln in lines if not re.search(r"wall|core-s|reduction|break-even|\b\d+ s\b|git commit", ln, re.I)]
 
 
 @pytest.fixture(scope="module")
@@ -2295,6 +2295,7 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
     searches = [f for f in glob.glob(os.path.join(smoke_run, "tpe", "*.json")) if "per-design-bo" not in f]
     played = sum(len(row) for sc in sets for row in sc["final_x"]) * ep
     played += sum(len(read_json(f)["trials"]) for f in searches) * p.score_episodes * ep
+    played += len(searches) * p.peak_episodes * ep                    # each search's peak, scored once more
     assert played == sum(v["score_steps"] for k, v in pl.items() if k != "cost")
     probed = sum(len(h["probes_unit"]) * len(h["mu"])   # per round, every specialist scores every probe
                  for f in glob.glob(os.path.join(smoke_run, "ges", "*", "state.json"))
@@ -2316,6 +2317,40 @@ def test_run_all_cost_claim_needs_a_saving_beyond_the_drift():
         assert len(rows) == 1 and f"| {want} |" in rows[0], (red, rows)
 
 
+def test_run_all_cost_claim_from_the_break_even_trial_count():
+    """GES pays a fixed cost, then a cheap J per trial; BO a training per trial: n* = fixed / (BO - GES per trial)
+    with a bootstrap interval over BO's trials; supported when even the interval's top (+20 % drift) is < 40."""
+    cost = {"bo_trial_s": [100.0, 100.0, 100.0], "ges_fixed_s": 300.0, "ges_per_trial_s": 10.0}
+    n, lo, hi = run_all.break_even(cost)
+    assert n == pytest.approx(300 / 90) and lo == pytest.approx(n) and hi == pytest.approx(n)
+    assert run_all.cost_claim(cost)[1] == "supported"
+    assert run_all.cost_claim(dict(cost, ges_fixed_s=4000.0))[1] == "not resolved"     # n* = 44.4, within drift
+    assert run_all.cost_claim(dict(cost, ges_fixed_s=9000.0))[1] == "not supported"    # n* = 100
+    assert run_all.break_even(dict(cost, ges_per_trial_s=150.0))[0] == math.inf        # BO's trial is cheaper
+    spread = dict(cost, bo_trial_s=[50.0, 100.0, 150.0])
+    n, lo, hi = run_all.break_even(spread)
+    assert lo < n < hi and hi == pytest.approx(300 / (50 - 10), rel=0.05)   # the interval's top: all trials at 50
+
+
+def test_run_all_gait_features_and_designs_needed():
+    """Gait features of a known toe trajectory: a 2.5 Hz hop of 10 cm, both toes up part of the time; and
+    the designs a paired test needs at 80 % power: (2.8 sd / mean)^2."""
+    dt = ballu.BalluConfig().control_dt
+    t = np.arange(400) * dt
+    z = np.clip(0.1 * np.sin(2 * np.pi * 2.5 * t), 0, None) + 0.004
+    f = run_all.gait_features(np.stack([z, z + 0.001], axis=1), dt)
+    assert f["step_hz"] == pytest.approx(2.5) and f["peak_toe_cm"] == pytest.approx(10.4, abs=0.05)
+    assert f["airborne_pct"] == pytest.approx(100 * np.mean(z > 0.02))
+    rng = np.random.default_rng(0)
+    base = rng.normal(20, 5, 20)
+    d = rng.normal(0.5, 2.0, 20)
+    res = {"a": {"scores": (base + d).tolist()}, "b": {"scores": base.tolist()}}
+    want = math.ceil((2.8 * d.std(ddof=1) / abs(d.mean())) ** 2)
+    assert run_all.designs_needed(res, "a") == f"a verdict needs ~{want} test designs at the measured spread"
+    res["a"]["scores"] = (base + 3.0).tolist()
+    assert run_all.designs_needed(res, "a") == "every comparison resolved"
+
+
 @pytest.mark.slow
 def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
     """A rerun on a damaged results folder: what can be redone exactly (a stage's result, a score set, a TPE study,
@@ -2328,7 +2363,7 @@ def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
 
     def damage(rel, how):
         path = os.path.join(out, rel)
-        data = read_text(path, "rb")
+        data = read_bytes(path)
         write_bytes(path, DAMAGES[how](data))
         return path, data
 
