@@ -881,9 +881,9 @@ class HysteresisPump:
 @pytest.mark.slow
 def test_ballu_score_reuse_replays_known_levels_exactly(monkeypatch):
     """score(reuse=True) plays each level of a design's walk once: J and every episode's final x equal playing
-    every episode, on walks that climb, then hold a level (the robot lands on the box and stays there), that sit
-    on the floor level 0, and on the ramp (the wedge is rebuilt each level), with fewer physics steps; reuse needs
-    unit level steps."""
+    every episode, on walks that clear the box and come back to a level they played (a swing between two levels
+    or a hold), that sit on the floor level 0, and on the ramp (the wedge is rebuilt each level), with fewer
+    physics steps; reuse needs unit level steps."""
     steps = [0]
     step_simulation = pybullet.stepSimulation
 
@@ -905,8 +905,8 @@ def test_ballu_score_reuse_replays_known_levels_exactly(monkeypatch):
         x = out[False][1]
         assert len(set(x[1])) == 1 and x[1, 0] < 0.5, x          # the D2 centre sits on level 0
         assert cost[True] < cost[False], (task, cost)
-        if task == "obstacle":   # the baseline clears (x > 1) twice, then holds its level (0.5 < x < 1)
-            assert min(x[0, :2]) > 1.0 and 0.5 < x[0, 2] < 1.0 and x[0, 2] == x[0, 3] == x[0, 4], x
+        if task == "obstacle":   # the baseline clears the box (x > 1), then returns to a level it played
+            assert x[0].max() > 1.0 and len(set(x[0])) < len(x[0]), x
     with pytest.raises(ValueError, match="reuse=True needs unit level steps"):
         ballu.score(HysteresisPump(), designs[:1], "obstacle", level_steps=(2, 1), reuse=True)
 
