@@ -629,11 +629,14 @@ def bullet_substeps(n: int) -> int:
     return n if n > 1 else 0
 
 
+_LIMITS = tuple(map(tuple, JOINT_LIMITS.tolist()))   # plain floats for the per-step check below
+
+
 def needs_fine_substeps(joint_states, dt: float, speed: float) -> bool:
     """Adaptive substeps [ours]: True if some joint (JOINTS order, PyBullet joint states) moves faster than
     `speed` rad/s or would cross a limit within dt at its present speed. Bullet activates a limit only once the
     joint is past it, so such a step needs short substeps to keep the overshoot small (BalluConfig.substeps)."""
-    for (lo, hi), st in zip(JOINT_LIMITS.tolist(), joint_states):
+    for (lo, hi), st in zip(_LIMITS, joint_states):
         q, qd = st[0], st[1]
         if qd > speed or qd < -speed or not lo <= q + qd * dt <= hi:
             return True
