@@ -8,6 +8,7 @@
     python -m experiments.ballu_capability --audit 200      # a table per simulator setting (AUDIT_CONFIGS)
     python -m experiments.ballu_capability --capability     # designs x CAPABILITY_CONFIGS x 3 search seeds
     python -m experiments.ballu_capability --floors         # J of the scripted floors (stand, pump gaits)
+    python -m experiments.ballu_capability --ceiling obstacle   # the open-loop level on the PPO protocol's designs
 
 Results and their reading: docs/capability/README.md. [ours] throughout: the paper and the facts are silent.
 """
@@ -301,6 +302,23 @@ def capability_table(designs=("baseline", "paper optimum (gcr 0.88, spcf 0.008)"
             f"brackets; lower bounds on what a policy can do.\n\n" + "\n".join(rows))
 
 
+def ceiling_table(task: str, seed: int = 0, pop: int = 16, iters: int = 14, workers: int = 2,
+                  progress=print) -> str:
+    """`--ceiling TASK`: the highest level an open-loop gait clears (`_search_level`) on each of the PPO
+    protocol's held-out designs, so that a policy's J there can be read against what the design itself allows:
+    a policy far below it is a weak learner, one near it a weak design. One search seed (a lower bound)."""
+    from experiments.ppo_protocol import protocol_designs
+    rows = ["| design | gcr | spcf | open-loop level cleared | in the score's unit |", "|---|---|---|---|---|"]
+    t0 = time.time()
+    for i, d in enumerate(protocol_designs()):
+        level, _ = _search_level(d, task, BalluConfig(task=task), np.random.default_rng(seed), pop, iters, workers)
+        unit = f"{level_score(task, level):.1f}" if level >= 0 else "-"
+        rows.append(f"| {i} | {d[2]:.3f} | {d[3]:.3f} | {level} | {unit} |")
+        progress(f"ceiling: {rows[-1]}  [{time.time() - t0:.0f} s]")
+    return (f"{task}: open-loop search (search seed {seed}) on the PPO protocol's held-out D2 designs; level -1: "
+            f"not even level 0 cleared.\n\n" + "\n".join(rows))
+
+
 FLOOR_DESIGNS = ("baseline", "paper optimum (gcr 0.88, spcf 0.008)")
 
 
@@ -327,20 +345,24 @@ def main(argv=None):
     ap.add_argument("--audit", type=int, metavar="EPISODES", help="random open-loop stability and energy audit")
     ap.add_argument("--capability", action="store_true", help="open-loop search: what the robot can do")
     ap.add_argument("--floors", action="store_true", help="J of the scripted floors (stand, pump gaits)")
+    ap.add_argument("--ceiling", choices=("obstacle", "ramp"), metavar="TASK",
+                    help="open-loop level on each PPO protocol design (obstacle or ramp)")
     ap.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
     args = ap.parse_args(argv)
     if args.audit is not None and args.audit < 1:
         ap.error(f"--audit {args.audit}: the number of episodes must be >= 1")
     if args.workers < 1:
         ap.error(f"--workers {args.workers} must be >= 1")
-    if not (args.audit or args.capability or args.floors):
-        ap.error("nothing to do: give --audit EPISODES, --capability and/or --floors")
+    if not (args.audit or args.capability or args.floors or args.ceiling):
+        ap.error("nothing to do: give --audit EPISODES, --capability, --floors and/or --ceiling TASK")
     if args.audit:
         print(audit_table(args.audit, args.workers))
     if args.capability:
         print(capability_table(workers=args.workers))
     if args.floors:
         print(floors_table(workers=args.workers))
+    if args.ceiling:
+        print(ceiling_table(args.ceiling, workers=args.workers))
 
 
 if __name__ == "__main__":
