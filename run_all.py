@@ -422,30 +422,38 @@ def plan_text(preset: Preset, workers: int = 2) -> str:
                               f"({total * workers:.1f} core-hours)"])
 
 
-def rate_job(folder: str, kind: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
-    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on obstacle D2
+def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
+    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
     for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J)."""
-    space = space_of(preset, "obstacle", "d2")
+    space = space_of(preset, task, "d2")
     t0 = time.time()
-    ckpt = train_policy(folder, kind, "obstacle", ballu.UniformDesign(space), steps, preset, seed, 1, "")
+    ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
     t1 = time.time()
     designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
-    score_policy(ppo.load_policy(ckpt), space.full(designs), "obstacle", preset, 1)
+    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1)
     return steps / (t1 - t0), (time.time() - t1) / n_designs
 
 
+# The jobs `--rates` times, as the stages mix them: each kind of policy on each task. The ramp's contacts make its
+# steps dearer than the obstacle's; timing the obstacle alone made the quick run's baselines 36 % longer than
+# planned (docs/quick/stage_seconds.json against `--plan`).
+RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
+
+
 def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
-                  out: str | None = None) -> dict:
-    """The per-core rates `plan` uses, measured as run_all runs its jobs: `workers` single-process jobs side by
-    side (e2e MLP and MoE alternately), each training then scoring. SCORE_RATE is the played-step rate that makes
-    a J cost what it did: SCORE_PLAYED * 20 episodes * 400 steps / (s per J). A policy trained this briefly sits
-    near the floor, where J's reuse replays less than for a trained one, so the score rate is a lower bound."""
+                  out: str | None = None, jobs: int | None = None) -> dict:
+    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
+    RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
+    played-step rate that makes a J cost what it did: SCORE_PLAYED * 20 episodes * 400 steps / (s per J). A
+    policy trained this briefly sits near the floor, where J's reuse replays less than for a trained one, so the
+    score rate is a lower bound."""
     import tempfile
     folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
+    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
     ex = Run(folder, preset, 0, workers).pool()
     try:
-        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), ("mlp", "moe")[i % 2], preset, steps,
-                          n_designs, i) for i in range(workers)]
+        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, preset, steps, n_designs, i)
+                for i, (kind, task) in enumerate(todo)]
         res = [f.result() for f in futs]
     finally:
         ex.shutdown(wait=True)
@@ -453,14 +461,15 @@ def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_des
             shutil.rmtree(folder, ignore_errors=True)
     train, per_J = [r[0] for r in res], [r[1] for r in res]
     J_steps = preset.score_episodes * ballu.BalluConfig().episode_steps
-    return {"workers": workers, "train_steps_per_s": train, "seconds_per_J": per_J,
-            "train_rate": float(np.mean(train)), "score_rate": float(played_share(preset) * J_steps / np.mean(per_J))}
+    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
+            "seconds_per_J": per_J, "train_rate": float(np.mean(train)),
+            "score_rate": float(played_share(preset) * J_steps / np.mean(per_J))}
 
 
 def rates_text(r: dict) -> str:
-    train = ", ".join(f"{x:.0f}" for x in r["train_steps_per_s"])
-    per_J = ", ".join(f"{x:.1f}" for x in r["seconds_per_J"])
-    return (f"{r['workers']} job(s) side by side (e2e MLP, MoE, ...): PPO {train} steps/s; J {per_J} s per design\n"
+    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design"
+                     for j, x, y in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"]))
+    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
             f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} (lower bound) against "
             f"the constants {TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
 
@@ -1898,8 +1907,9 @@ def parse(argv):
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
     ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "
                     "--workers cores at the measured rates (run_all.TRAIN_RATE, SCORE_RATE), then exit")
-    ap.add_argument("--rates", action="store_true", help="measure those rates with the preset's batch: --workers "
-                    "jobs side by side, each training 40,960 PPO steps and scoring 3 designs (~2 min), then exit")
+    ap.add_argument("--rates", action="store_true", help="measure those rates with the preset's batch: an e2e MLP "
+                    "and MoE on each task, --workers side by side, each training 40,960 PPO steps and scoring 3 "
+                    "designs (~4 min), then exit")
     ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(STAGES)}")
     ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")

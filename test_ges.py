@@ -2274,10 +2274,11 @@ def test_run_all_progress_eta_counts_parallel_units(capsys):
 def test_run_all_rates_measure_what_plan_uses(tmp_path):
     """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: a rate per job, and
     SCORE_RATE is the J's played steps over its measured seconds (one episode of 400 steps: nothing replayed)."""
-    r = run_all.measure_rates(run_all.SMOKE, workers=1, steps=128, n_designs=1, out=str(tmp_path))
-    assert len(r["train_steps_per_s"]) == len(r["seconds_per_J"]) == 1
+    r = run_all.measure_rates(run_all.SMOKE, workers=1, steps=128, n_designs=1, out=str(tmp_path), jobs=2)
+    assert r["jobs"] == ["mlp obstacle", "moe ramp"]      # each kind, each task: the stages mix them
+    assert len(r["train_steps_per_s"]) == len(r["seconds_per_J"]) == 2
     assert r["train_rate"] > 0 and r["seconds_per_J"][0] > 0
-    assert r["score_rate"] == pytest.approx(ballu.BalluConfig().episode_steps / r["seconds_per_J"][0])
+    assert r["score_rate"] == pytest.approx(ballu.BalluConfig().episode_steps / np.mean(r["seconds_per_J"]))
     assert "TRAIN_RATE" in run_all.rates_text(r)
 
 
