@@ -230,6 +230,26 @@ def test_ballu_same_seed_same_trajectory_and_workers_do_not_matter():
     assert not np.array_equal(runs[0], other)
 
 
+def test_ballu_design_hold_keeps_a_lane_on_its_design_for_that_many_episodes():
+    """design_hold=3: a training lane draws a design at the full reset and then every 3rd episode, so its level
+    can follow that design; the default 1 draws at every reset."""
+    def designs_per_episode(hold):
+        env = BalluEnv(2, replace(BalluConfig(), episode_steps=2, design_hold=hold), design_sampler=d2_sampler)
+        env.reset(seed=3)
+        seen = [env.designs.copy()]
+        for _ in range(7):                       # 2 steps per episode: every 2nd step starts a new one
+            for _ in range(2):
+                env.step(np.full((2, 2), 0.5))
+            seen.append(env.designs.copy())
+        env.close()
+        return np.array(seen)                    # (episodes, lanes, 4)
+    one, three = designs_per_episode(1), designs_per_episode(3)
+    changed = lambda d: [not np.array_equal(d[k], d[k - 1]) for k in range(1, len(d))]
+    assert all(changed(one))
+    assert changed(three) == [False, False, True, False, False, True, False]
+    np.testing.assert_array_equal(three[0], one[0])          # the same first draw from the same lane seed
+
+
 def test_ballu_curriculum_rule():
     assert list(ballu.curriculum_update("obstacle", [5, 5, 5, 74, 0], [1.01, 0.7, 0.49, 3.0, -1.0])) == [6, 5, 4, 74, 0]
     assert list(ballu.curriculum_update("ramp", [40, 40, 40], [1.71, 1.5, 1.29])) == [41, 40, 39]
@@ -489,7 +509,8 @@ def test_ballu_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch
 @pytest.mark.parametrize("change, match", [({"substeps": 0}, r"substeps=0 must be an integer in \[1, 64\]"),
                                            ({"substeps_fine": 2}, "substeps_fine=2 must be >= substeps=4"),
                                            ({"drag_coef": -0.1}, "drag_coef=-0.1 must be a finite number >= 0"),
-                                           ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite")])
+                                           ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite"),
+                                           ({"design_hold": 0}, r"design_hold=0 must be an integer in \[1, ")])
 def test_ballu_bad_simulator_settings_name_the_field(change, match):
     with pytest.raises(ValueError, match=match):
         BalluEnv(1, replace(BalluConfig(), **change))

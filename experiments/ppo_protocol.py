@@ -61,6 +61,11 @@ PROTOCOL_SETTINGS = {
     # only tried with the facts' 1e-2 (+2.2 cm at 1 M, -2.7 at 2 M with two seeds collapsing): both levers at once
     "lr_cap_spread": {**LR_CAP, "start_level": "spread"},           # = lr_cap on the ramp (spread is its default);
     #          screened, not adopted: obstacle +0.1 +- 1.0 cm at 1 M, +1.4 +- 2.2 at 2 M against lr_cap
+    # new robot: the level is the lane's, the design is drawn anew every episode, so a lane's level follows the
+    # average design (held-out design 3 clears 38 cm open loop, the policy 12-18). The authors fix each env's
+    # design for the whole run (4096 envs, 4096 designs; docs/facts.md); with 32 lanes we hold it a while
+    "hold10": {**LR_CAP, "design_hold": 10},                       # a new design every 10th episode
+    "hold40": {**LR_CAP, "design_hold": 40},                       # every 40th: ~2 designs per lane per M steps
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
