@@ -1345,7 +1345,7 @@ def _score_play(state, until):
                 more = ids[count[ids] < episodes]
                 _replay_known(s, more, info["levels"][more])
             env.pause(np.flatnonzero(count >= episodes))   # finished lanes: their worlds stop stepping
-    return final.copy(), x.copy()
+    return final.copy(), x.copy(), s["episodes_played"]
 
 
 def _score_close(state):
@@ -1376,7 +1376,7 @@ def check_level_steps(level_steps, episodes: int | None) -> np.ndarray:
 
 def score(policy, designs, task: str = "obstacle", episodes: int | None = None, start_level: int | None = None,
           workers: int = 1, cfg: BalluConfig | None = None, progress=None, final_x: bool = False,
-          level_steps=None, reuse: bool | None = None):
+          level_steps=None, reuse: bool | None = None, stats: dict | None = None):
     """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
 
     The policy (any picklable callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy;
@@ -1405,6 +1405,7 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     reaches a level it played before, the rest of it cycles through known episodes: it is filled in, and the
     design's world stops stepping. The J and every episode's final x are those of playing all 20 (test).
     A walk that holds its level or swings between two costs 1-2 episodes after it gets there.
+    `stats` (a dict) receives "episodes_played", the episodes actually simulated (what a J costs).
     """
     cfg = replace(cfg or BalluConfig(), task=task, lanes_per_world=1)   # one world per design (above)
     d = check_design(designs, what="designs")
@@ -1435,6 +1436,8 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
         raise
     call(_score_close, [()] * len(parts))
     j = level_score(task, np.concatenate([o[0] for o in outs]))
+    if stats is not None:
+        stats["episodes_played"] = int(sum(o[2] for o in outs))
     return (j, np.concatenate([o[1] for o in outs])) if final_x else j
 
 

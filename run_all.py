@@ -146,7 +146,7 @@ class TrainSpecialist:
 
 
 def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, label: str = "",
-                 probe: bool = False, trace: dict | None = None) -> np.ndarray:
+                 probe: bool = False, trace: dict | None = None, stats: dict | None = None) -> np.ndarray:
     """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
     count or on the call's other designs: ballu.score gives each design a PyBullet world of its own, and learned
     policies run row by row).
@@ -160,7 +160,7 @@ def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, l
     j, x = ballu.score(policy, designs_full, task, episodes=None if steps else preset.score_episodes,
                        start_level=preset.score_start_level, level_steps=steps,
                        workers=max(1, min(workers, len(designs_full))), progress=Throttled(label) if label else None,
-                       final_x=True)
+                       final_x=True, stats=stats)
     if trace is not None:
         trace.update({np.asarray(d, float).tobytes(): [float(v) if np.isfinite(v) else None for v in row]
                       for d, row in zip(designs_full, x)})
@@ -424,14 +424,17 @@ def plan_text(preset: Preset, workers: int = 2) -> str:
 
 def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
     """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
-    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J)."""
+    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
+    score steps/s: the steps J actually simulated, replays excluded)."""
     space = space_of(preset, task, "d2")
     t0 = time.time()
     ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
     t1 = time.time()
     designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
-    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1)
-    return steps / (t1 - t0), (time.time() - t1) / n_designs
+    stats = {}
+    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
+    played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
+    return steps / (t1 - t0), (time.time() - t1) / n_designs, played / (time.time() - t1)
 
 
 # The jobs `--rates` times, as the stages mix them: each kind of policy on each task. The ramp's contacts make its
@@ -444,9 +447,8 @@ def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_des
                   out: str | None = None, jobs: int | None = None) -> dict:
     """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
     RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
-    played-step rate that makes a J cost what it did: SCORE_PLAYED * 20 episodes * 400 steps / (s per J). A
-    policy trained this briefly sits near the floor, where J's reuse replays less than for a trained one, so the
-    score rate is a lower bound."""
+    rate of the score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on
+    how much a policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED)."""
     import tempfile
     folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
     todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
@@ -459,19 +461,19 @@ def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_des
         ex.shutdown(wait=True)
         if out is None:
             shutil.rmtree(folder, ignore_errors=True)
-    train, per_J = [r[0] for r in res], [r[1] for r in res]
-    J_steps = preset.score_episodes * ballu.BalluConfig().episode_steps
+    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
     return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
-            "seconds_per_J": per_J, "train_rate": float(np.mean(train)),
-            "score_rate": float(played_share(preset) * J_steps / np.mean(per_J))}
+            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
+            "score_rate": float(np.mean(played))}
 
 
 def rates_text(r: dict) -> str:
-    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design"
-                     for j, x, y in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"]))
+    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
+                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
+                                           r["played_steps_per_s"]))
     return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
-            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} (lower bound) against "
-            f"the constants {TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
+            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
+            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
 
 
 # ----------------------------------------------------------------------------------------------------------

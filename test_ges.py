@@ -915,12 +915,13 @@ def test_ballu_score_reuse_replays_known_levels_exactly(monkeypatch):
     monkeypatch.setattr(ballu.pybullet, "stepSimulation", counted)
     designs = np.array([ballu.BASELINE, ballu.D2_CENTRE])
     for task, start, episodes in (("obstacle", 6, 5), ("ramp", 2, 5)):
-        out, cost = {}, {}
+        out, cost, played = {}, {}, {}
         for reuse in (False, True):
-            steps[0] = 0
+            steps[0], stats = 0, {}
             out[reuse] = ballu.score(HysteresisPump(), designs, task, episodes=episodes, start_level=start,
-                                     final_x=True, reuse=reuse)
-            cost[reuse] = steps[0]
+                                     final_x=True, reuse=reuse, stats=stats)
+            cost[reuse], played[reuse] = steps[0], stats["episodes_played"]
+        assert played[False] == episodes * len(designs) > played[True]   # what a J costs, for run_all's plan
         np.testing.assert_array_equal(out[True][0], out[False][0])
         np.testing.assert_array_equal(out[True][1], out[False][1])
         x = out[False][1]
@@ -2299,7 +2300,10 @@ def test_run_all_rates_measure_what_plan_uses(tmp_path):
     assert r["jobs"] == ["mlp obstacle", "moe ramp"]      # each kind, each task: the stages mix them
     assert len(r["train_steps_per_s"]) == len(r["seconds_per_J"]) == 2
     assert r["train_rate"] > 0 and r["seconds_per_J"][0] > 0
-    assert r["score_rate"] == pytest.approx(ballu.BalluConfig().episode_steps / np.mean(r["seconds_per_J"]))
+    # one episode per J: every episode is played, so the played-step rate is 400 steps over the J's seconds
+    np.testing.assert_allclose(r["played_steps_per_s"], ballu.BalluConfig().episode_steps
+                               / np.array(r["seconds_per_J"]), rtol=0.05)
+    assert r["score_rate"] == pytest.approx(np.mean(r["played_steps_per_s"]))
     assert "TRAIN_RATE" in run_all.rates_text(r)
 
 
