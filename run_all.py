@@ -310,21 +310,22 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
                probe_level_steps=(2,), peak_episodes=2)
 
-# quick: every table and figure in <= 2 h on a 2-core machine, planned on the measured rates below
-# (`python run_all.py --preset quick --plan`: 2.00 h with GES at its round cap). What 2 h buys (hours on 2 cores):
-#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 300k steps;
-#   - GES 0.46 + Table III 0.31 + Fig. 7 0.05: specialists warm-start from their cell's e2e MLP (ges_warm_start;
+# quick: every table and figure in <= 2 h on a 2-core machine, planned on the measured rates below with a 15 %
+# margin (`python run_all.py --preset quick --plan`: 1.72 h with GES at its round cap). What it buys (hours on 2 cores):
+#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 380k steps, what the
+#     margin allows (the e2e MLP's obstacle level climbs until ~0.5 M steps in the protocol, docs/ppo_protocol);
+#   - GES 0.32 + Table III 0.21 + Fig. 7 0.04: specialists warm-start from their cell's e2e MLP (ges_warm_start;
 #     ours: from random init they would get ~30k steps each), then train / probe / refit until 95 % coverage or
 #     3 rounds (10k steps each, F = 5 probes, each a 20-episode J). Probes are most of GES's cost, so Fig. 7
 #     runs K = 1 and 3 (GES's own run), not the paper's 1-6 (overnight and paper do);
-#   - Table II 0.52: 20 test designs per cell and method (paired CI of GES - e2e MLP ~+-2.3 cm at an sd of
-#     5 cm), TPE design searches of 6 trials (3 random); cost: 3 per-design BO trials (a per-trial mean and
-#     spread for the break-even count), each a 300k-step training.
+#   - Table II 0.36: 20 test designs per cell and method (paired CI of GES - e2e MLP ~+-3 cm at the last quick
+#     run's sd of 6-7 cm), TPE design searches of 6 trials (3 random), each search's peak scored again by a
+#     30-episode J; cost 0.18: 3 per-design BO trials (a per-trial mean and spread for the break-even count).
 # ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
 # won, so growth per round is set by F / n_init (`python ges.py --sweep`, planted landscape): n_init 2 grows
 # 12 % -> 16-25 % (D2) in 3 rounds with F = 6, n_init 50 stays flat. Reaching 95 % takes ~100 probe J per
 # specialist in D2 and ~200 in D3: hours of probes, so quick reports each run's coverage at its cap.
-QUICK = Preset("quick", ppo_steps=300_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
+QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, K_d2=3, K_d3=6, ges_max_rounds=3,
                ges_target_coverage=0.95, ges_probes=5, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
                ges_fps_pool=10_000, ksens_K=(1, 3),
@@ -332,7 +333,7 @@ QUICK = Preset("quick", ppo_steps=300_000, ges_round_steps=10_000, ppo_envs=32, 
                peak_episodes=30)
 
 # overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table and
-# figure: `--plan` gives 28.2 h with every GES run at its 20-round cap, an upper bound (on the planted landscape
+# figure: `--plan` gives 19.8 h with every GES run at its 20-round cap, an upper bound (on the planted landscape
 # n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3). 1 M-step policies, 30k steps per specialist and
 # round, 50 test designs (paired CI ~+-1.4 cm at an sd of 5 cm), Fig. 7 at K = 1-6.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
@@ -344,7 +345,7 @@ OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
 # PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For a cluster or a big
-# machine: `--plan` gives ~1,050 core-hours (~22 days on 2 cores).
+# machine: `--plan` gives ~800 core-hours (~17 days on 2 cores).
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
                score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
                ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
@@ -356,13 +357,15 @@ PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
 # --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
 # Per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores busy),
-# measured by `python run_all.py --rates` (2026-11-25, previous robot): PPO training at the quick preset's batch,
-# and the 20-episode J of trained e2e MLPs (560 played steps/s at SCORE_PLAYED). Rates measured with one job on both
-# cores made the plan 1.4x too short.
-TRAIN_RATE, SCORE_RATE = 700.0, 560.0
+# measured by `python run_all.py --rates` (2026-11-26, new robot, AMD EPYC, alone): PPO training at the quick
+# preset's batch, an e2e MLP and MoE on each task (978 and 878 steps/s in two runs; the lower one here), and the
+# score steps J actually played (844/s: MLP 942-1027, MoE 695-711). Rates measured with one job on both cores made
+# the plan 1.4x too short, and timing the obstacle alone made the baselines 36 % longer than planned.
+TRAIN_RATE, SCORE_RATE = 880.0, 840.0
 # Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
-# 0.52-0.80 (mean 0.66) for four e2e MLPs at 1 M steps on 12 held-out designs (obstacle, from level 28). The step
-# counts below stay those of every episode.
+# 0.52-0.80 (mean 0.66) for four e2e MLPs at 1 M steps on 12 held-out designs (obstacle, from level 28), previous
+# robot; 0.48-0.68 (mean 0.57) for the new robot's three lr_cap MLPs at 1 M. The larger one is kept (the plan is an
+# upper bound). The step counts below stay those of every episode.
 SCORE_PLAYED = 0.66
 
 
