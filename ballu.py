@@ -701,7 +701,8 @@ class BalluEnv:
     has its own design, curriculum level and random generator (seeded from (seed, lane id)).
 
     Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training: a new draw
-    every `cfg.design_hold` episodes, and at every full reset), else a lane keeps its design (scoring). With `curriculum=True` each finished episode moves the lane's level.
+    every `cfg.design_hold` episodes, and at every full reset), else a lane keeps its design (scoring). With
+    `curriculum=True` each finished episode moves the lane's level.
     """
 
     def __init__(self, num_envs: int = 1, cfg: BalluConfig = BalluConfig(), lane_ids=None,

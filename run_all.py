@@ -436,8 +436,9 @@ def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_
     designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
     stats = {}
     score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
+    scored = time.time() - t1
     played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
-    return steps / (t1 - t0), (time.time() - t1) / n_designs, played / (time.time() - t1)
+    return steps / (t1 - t0), scored / n_designs, played / scored
 
 
 # The jobs `--rates` times, as the stages mix them: each kind of policy on each task. The ramp's contacts make its
