@@ -332,15 +332,21 @@ QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, 
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=3, ges_warm_start=True,
                peak_episodes=30)
 
-# overnight: GES run to its stopping rule (paper: 95 % MC coverage; facts: at most 20 rounds) with every table and
-# figure: `--plan` gives 19.8 h with every GES run at its 20-round cap, an upper bound (on the planted landscape
-# n_init 2, F 16 stops after 8-11 rounds in D2 and 9-20 in D3). 1 M-step policies, 30k steps per specialist and
-# round, 50 test designs (paired CI ~+-1.4 cm at an sd of 5 cm), Fig. 7 at K = 1-6.
+# overnight: one night on 2 cores (`--plan`: 9.8 h with every GES run at its round cap, 11.2 h with a 15 % margin).
+#   - baselines 1.58: 1 M PPO steps per policy, the protocol's milestone (docs/ppo_protocol/new_robot: its e2e MLP
+#     scores 17.8 cm / 28.6 deg there, and 2 M add nothing on the obstacle);
+#   - GES 2.42 + Table III 1.34 + Fig. 7 (K = 1-6) 2.64: 30k steps per specialist and round, F = 10 probes, at
+#     most 10 rounds (facts: 20). The real runs cover faster than the planted landscape: the quick run's D2
+#     reached 95 % in 2-3 rounds of F = 5; 10 rounds of F = 10 give each specialist 100 probes, what the planted
+#     landscape needs in D2 (`python ges.py --sweep`); a run that stops at the cap reports its coverage;
+#   - Table II 1.14: 50 test designs (paired CI of GES - e2e MLP ~+-2 cm at the quick run's sd of the paired
+#     differences, 6-7 cm), the paper's 40 TPE trials (10 random first; each trial is one J, cheap), peaks
+#     rescored by a 30-episode J; cost 0.64: 4 per-design BO trials of 1 M steps.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
-                   score_episodes=20, n_test=50, tpe_trials=12, tpe_startup=6, K_d2=3, K_d3=6, ges_max_rounds=20,
-                   ges_target_coverage=0.95, ges_probes=16, ges_probe_pool=2000, ges_init_designs=2,
+                   score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=10,
+                   ges_target_coverage=0.95, ges_probes=10, ges_probe_pool=2000, ges_init_designs=2,
                    ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
-                   table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=1, ges_warm_start=True,
+                   table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=4, ges_warm_start=True,
                    peak_episodes=30)
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
