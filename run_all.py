@@ -382,14 +382,15 @@ def played_share(preset: Preset) -> float:
 
 # Fixed costs (smoke's wall time is mostly these): a process pool's start, its `workers` spawned processes importing
 # torch and pybullet (~2 s on idle cores, the comment in train_policy; 7-8 s measured with a PPO training on both
-# cores), once per pool a stage starts; and the figures stage (9.5 s in a smoke run).
+# cores), once per pool a stage starts; and the figures stage (9.5 s in a smoke run, 40 s in the quick run).
 POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
-POOL_START_S, FIGURES_S = 2.0, 10.0
+POOL_START_S, FIGURES_S = 2.0, 40.0
 
 
 def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
     """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
-    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing,
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing
+    (but per-design BO: its random startup trials `workers` at a time, the TPE trials after them one at a time),
     scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
     GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
     that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
@@ -414,9 +415,12 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
             "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
     played = played_share(p)
     fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
+    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
+    startup = min(p.cost_trials, p.tpe_startup)
+    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
     return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / workers + fixed[stage])
-                    / 3600} for stage, w in work.items()}
+                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / width.get(stage, workers)
+                              + fixed[stage]) / 3600} for stage, w in work.items()}
 
 
 def plan_text(preset: Preset, workers: int = 2) -> str:

@@ -2331,6 +2331,18 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
     assert "total" in capsys.readouterr().out
 
 
+def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
+    """Per-design BO runs its random startup trials `workers` at a time and its TPE trials one at a time (the
+    quick run's cost stage took 1.24x a plan that packed all 3 trials on 2 cores): on 2 cores, 3 random trials
+    take two trial-times, 1 random + 2 TPE trials three, 4 random (of 10) two."""
+    def hours(**kw):
+        return run_all.plan(replace(run_all.QUICK, **kw), 2)["cost"]["hours"] - run_all.POOL_START_S / 3600
+    one = hours(cost_trials=1, tpe_startup=1)
+    assert hours(cost_trials=3, tpe_startup=3) == pytest.approx(2 * one)
+    assert hours(cost_trials=3, tpe_startup=1) == pytest.approx(3 * one)
+    assert hours(cost_trials=4, tpe_startup=10) == pytest.approx(2 * one)
+
+
 def test_run_all_probe_winners_tie_rule():
     J = np.array([[3, 1, 2, 5], [3, 2, 1, 5], [1, 2, 0, 6]])   # rows: checkpoints, columns: designs
     np.testing.assert_array_equal(run_all.probe_winners(J), [0, 1, 0, 2])   # ties -> lowest index, as GES
