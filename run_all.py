@@ -311,7 +311,8 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                probe_level_steps=(2,), peak_episodes=2)
 
 # quick: every table and figure in <= 2 h on a 2-core machine, planned on the measured rates below with a 15 %
-# margin (`python run_all.py --preset quick --plan`: 1.72 h with GES at its round cap). What it buys (hours on 2 cores):
+# margin (`python run_all.py --preset quick --plan`: 1.79 h with GES at its round cap; measured 1.83 h).
+# What it buys (hours on 2 cores):
 #   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 380k steps, what the
 #     margin allows (the e2e MLP's obstacle level climbs until ~0.5 M steps in the protocol, docs/ppo_protocol);
 #   - GES 0.32 + Table III 0.21 + Fig. 7 0.04: specialists warm-start from their cell's e2e MLP (ges_warm_start;
@@ -320,7 +321,7 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 #     runs K = 1 and 3 (GES's own run), not the paper's 1-6 (overnight and paper do);
 #   - Table II 0.36: 20 test designs per cell and method (paired CI of GES - e2e MLP ~+-3 cm at the last quick
 #     run's sd of 6-7 cm), TPE design searches of 6 trials (3 random), each search's peak scored again by a
-#     30-episode J; cost 0.18: 3 per-design BO trials (a per-trial mean and spread for the break-even count).
+#     30-episode J; cost 0.24: 3 per-design BO trials (a per-trial mean and spread for the break-even count).
 # ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
 # won, so growth per round is set by F / n_init (`python ges.py --sweep`, planted landscape): n_init 2 grows
 # 12 % -> 16-25 % (D2) in 3 rounds with F = 6, n_init 50 stays flat. Reaching 95 % takes ~100 probe J per

@@ -23,7 +23,6 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 import ballu
 import ges
@@ -108,9 +107,9 @@ def one(run_dir, task, sp, preset, lanes, rollout, uniform, seed, out) -> dict:
 
 
 def paired(a, b) -> str:
-    d = np.asarray(a) - np.asarray(b)
-    p = stats.wilcoxon(d).pvalue if np.any(d != 0) else 1.0
-    return f"{d.mean():+.1f} +- {d.std(ddof=1) / np.sqrt(len(d)):.1f}, p={p:.2g}"
+    """run_all's paired comparison of a and b on the same designs, as a table cell."""
+    c = run_all.paired_comparison(a, b)
+    return f"{c['diff']:+.1f} [{c['diff_lo']:+.1f}, {c['diff_hi']:+.1f}], p={c['p']:.2g}"
 
 
 def main(argv=None):
@@ -130,7 +129,7 @@ def main(argv=None):
     mlp, ges_run = scores("mlp"), scores(f"ges-{task}-{sp}-K{K}-fps-lloyd")
     rows = [f"# GES specialists by lane layout: {task} {sp}, run {a.run} (preset {a.preset})", "",
             f"e2e MLP {np.mean(mlp):.2f}; the run's GES {np.mean(ges_run):.2f} (paired {paired(ges_run, mlp)})", "",
-            "| layout (lanes x rollout) | seed | GES J | GES - e2e MLP (mean +- SE over designs) | level move | "
+            "| layout (lanes x rollout) | seed | GES J | GES - e2e MLP [95 % paired CI], Wilcoxon p | level move | "
             "train s |", "|---|---|---|---|---|---|"]
     per_layout = {}
     for lanes, rollout, uniform in layouts(a.layouts):
