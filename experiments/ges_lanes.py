@@ -7,9 +7,12 @@ each final territory of a finished run_all GES run, round by round exactly as GE
 rounds, same trainer), under each lane layout (lanes x rollout, the same batch), then scores the routed
 specialists on the run's test designs, paired with the run's e2e MLP on the same designs. A layout with a
 'u' (e.g. 32x64u) is the control: the same rounds on uniform designs over the whole space, the e2e MLP's own
-training distribution, so what it changes is what any further PPO steps change, not specialisation.
+training distribution, so what it changes is what any further PPO steps change, not specialisation. A layout
+with an 's' (e.g. 32x64s) trains the specialists from random init, as the paper's Alg. 1 does. `--rounds` and
+`--round-steps` replace the run's rounds and the preset's steps per round (e.g. overnight's 10 x 30k).
 
     python -m experiments.ges_lanes RUN --task obstacle --space d2 --layouts 32x64,8x256,32x64u --seeds 0,1 --out DIR
+    python -m experiments.ges_lanes RUN --layouts 32x64,32x64u,32x64s --rounds 10 --round-steps 30000 --out DIR
 
 RUN: a finished `run_all.py` output folder (its preset given by --preset). Results: docs/ges_lanes/. [ours]
 """
@@ -31,13 +34,18 @@ import run_all
 
 
 def layouts(text: str) -> list:
-    """'32x64,8x256u' -> [(32, 64, False), (8, 256, True)]: lanes x rollout steps per update, uniform."""
+    """'32x64,8x256u,32x64s' -> [(32, 64, ''), (8, 256, 'u'), (32, 64, 's')]: lanes x rollout steps per update,
+    and the variant: '' territories from the e2e MLP, 'u' uniform designs (control), 's' from scratch."""
     out = []
     for part in text.lower().split(","):
-        n, t = (int(v) for v in part.rstrip("u").split("x"))
+        variant = part[-1] if part[-1:] in ("u", "s") else ""
+        try:
+            n, t = (int(v) for v in part.rstrip("us").split("x"))
+        except ValueError:
+            raise ValueError(f"--layouts: {part!r} is not LANESxROLLOUT[u|s], e.g. 32x64 or 32x64u") from None
         if n < 1 or t < 1:
             raise ValueError(f"--layouts: {part!r} needs lanes >= 1 and rollout >= 1")
-        out.append((n, t, part.endswith("u")))
+        out.append((n, t, variant))
     return out
 
 
@@ -52,7 +60,8 @@ class Uniform:
 
 
 def specialist(task, sp, preset, mlp_ckpt, mu, sigma, box, k, seed, rounds, folder, uniform=False) -> str:
-    """Specialist k from the e2e MLP: `rounds` rounds on N(mu, sigma) (or uniform), as ges_round calls it."""
+    """Specialist k from `mlp_ckpt` ('': random init): `rounds` rounds on N(mu, sigma) (or uniform), as ges_round
+    calls it."""
     trainer = run_all.TrainSpecialist(task, run_all.space_of(preset, task, sp), preset.ges_round_steps, preset,
                                       mlp_ckpt)
     ckpt_in = None
@@ -76,9 +85,12 @@ def level_moves(folder: str, K: int, rounds: int) -> float:
     return float(np.mean(moves))
 
 
-def one(run_dir, task, sp, preset, lanes, rollout, uniform, seed, out) -> dict:
-    """Train the K specialists of one layout and seed (two at a time), score them routed on the test designs."""
-    tag = f"{lanes}x{rollout}{'u' if uniform else ''}_seed{seed}"
+def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=None) -> dict:
+    """Train the K specialists of one layout and seed (two at a time), score them routed on the test designs.
+    `rounds`: None = the run's; a preset whose ges_round_steps differs from the run's names its own folder."""
+    tag = f"{lanes}x{rollout}{variant}_seed{seed}"
+    if rounds is not None or preset.ges_round_steps != run_all.PRESETS[preset.name].ges_round_steps:
+        tag += f"_r{rounds}x{preset.ges_round_steps}"
     folder = os.path.join(out, f"{task}-{sp}", tag)
     done = os.path.join(folder, "result.json")
     if os.path.exists(done):
@@ -87,11 +99,12 @@ def one(run_dir, task, sp, preset, lanes, rollout, uniform, seed, out) -> dict:
     K = preset.K_d2 if sp == "d2" else preset.K_d3
     result = ges.load_result(os.path.join(run_dir, "ges", f"{task}-{sp}-K{K}-fps-lloyd"))
     p = replace(preset, ppo_envs=lanes, ppo_rollout=rollout)
-    mlp = os.path.join(run_dir, "policies", f"mlp-{task}-{sp}", "policy.pt")
+    mlp = "" if variant == "s" else os.path.join(run_dir, "policies", f"mlp-{task}-{sp}", "policy.pt")
+    rounds = result.rounds if rounds is None else rounds
     t0 = time.time()
     with ProcessPoolExecutor(2) as ex:
         ckpts = list(ex.map(specialist, *zip(*[(task, sp, p, mlp, result.mu_unit[k], result.sigma_unit[k],
-                                                result.space, k, seed, result.rounds, folder, uniform)
+                                                result.space, k, seed, rounds, folder, variant == "u")
                                                for k in range(K)])))
     train_s = time.time() - t0
     space = run_all.space_of(preset, task, sp)
@@ -100,8 +113,9 @@ def one(run_dir, task, sp, preset, lanes, rollout, uniform, seed, out) -> dict:
     for k in np.unique(routed):
         J[routed == k] = run_all.score_policy(ppo.load_policy(ckpts[k]), space.full(designs[routed == k]), task,
                                               preset, 2)
-    res = {"layout": [lanes, rollout], "uniform": uniform, "seed": seed, "J": J.tolist(), "routed": routed.tolist(),
-           "level_move": level_moves(folder, K, result.rounds), "train_s": train_s}
+    res = {"layout": [lanes, rollout], "uniform": variant == "u", "scratch": variant == "s", "seed": seed,
+           "rounds": rounds, "round_steps": preset.ges_round_steps, "J": J.tolist(), "routed": routed.tolist(),
+           "level_move": level_moves(folder, K, rounds), "train_s": train_s}
     json.dump(res, open(done, "w"))
     return res
 
@@ -120,22 +134,31 @@ def main(argv=None):
     ap.add_argument("--space", default="d2", choices=("d2", "d3"))
     ap.add_argument("--layouts", default="32x64,8x256", help="lanes x rollout per update, comma separated")
     ap.add_argument("--seeds", default="0,1")
+    ap.add_argument("--rounds", type=int, default=None, help="rounds per specialist (default: the run's)")
+    ap.add_argument("--round-steps", type=int, default=None, help="PPO steps per round (default: the preset's)")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
+    for name in ("rounds", "round_steps"):
+        if getattr(a, name) is not None and getattr(a, name) < 1:
+            ap.error(f"--{name.replace('_', '-')}={getattr(a, name)} must be >= 1")
     preset, task, sp = run_all.PRESETS[a.preset], a.task, a.space
+    if a.round_steps:
+        preset = replace(preset, ges_round_steps=a.round_steps)
     seeds = [int(s) for s in a.seeds.split(",")]
     scores = lambda m: json.load(open(os.path.join(a.run, "scores", f"test-{task}-{sp}-{m}.json")))["scores"]
     K = preset.K_d2 if sp == "d2" else preset.K_d3
     mlp, ges_run = scores("mlp"), scores(f"ges-{task}-{sp}-K{K}-fps-lloyd")
-    rows = [f"# GES specialists by lane layout: {task} {sp}, run {a.run} (preset {a.preset})", "",
+    n_rounds = a.rounds or "the run's"
+    budget = f", {n_rounds} rounds x {preset.ges_round_steps:,} steps" if a.rounds or a.round_steps else ""
+    rows = [f"# GES specialists by lane layout: {task} {sp}, run {a.run} (preset {a.preset}){budget}", "",
             f"e2e MLP {np.mean(mlp):.2f}; the run's GES {np.mean(ges_run):.2f} (paired {paired(ges_run, mlp)})", "",
             "| layout (lanes x rollout) | seed | GES J | GES - e2e MLP [95 % paired CI], Wilcoxon p | level move | "
             "train s |", "|---|---|---|---|---|---|"]
     per_layout = {}
-    for lanes, rollout, uniform in layouts(a.layouts):
-        name = f"{lanes}x{rollout}" + (" uniform (control)" if uniform else "")
+    for lanes, rollout, variant in layouts(a.layouts):
+        name = f"{lanes}x{rollout}" + {"": "", "u": " uniform (control)", "s": " from scratch"}[variant]
         for s in seeds:
-            r = one(a.run, task, sp, preset, lanes, rollout, uniform, s, a.out)
+            r = one(a.run, task, sp, preset, lanes, rollout, variant, s, a.out, a.rounds)
             per_layout.setdefault(name, []).append(np.mean(r["J"]) - np.mean(mlp))
             rows.append(f"| {name} | {s} | {np.mean(r['J']):.2f} | {paired(r['J'], mlp)} | "
                         f"{r['level_move']:+.2f} | {r['train_s']:.0f} |")
@@ -144,7 +167,8 @@ def main(argv=None):
     rows += [f"| {n} | {np.mean(v):+.2f} +- {np.std(v, ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0:.2f} |"
              for n, v in per_layout.items()]
     text = "\n".join(rows) + "\n"
-    open(os.path.join(a.out, f"{task}-{sp}.md"), "w").write(text)
+    suffix = f"-r{a.rounds or ''}x{preset.ges_round_steps}" if a.rounds or a.round_steps else ""
+    open(os.path.join(a.out, f"{task}-{sp}{suffix}.md"), "w").write(text)
     print(text)
 
 
