@@ -284,7 +284,8 @@ class Preset:
     ppo_start: str = "task"     # ours: "task" = the task's measured default (ballu.train_start_levels:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
     #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
-    ges_warm_start: bool = False  # ours (quick, overnight): specialists start from their cell's e2e MLP (paper: random)
+    ges_warm_start: bool = False  # ours (quick, overnight): specialists start from their cell's e2e MLP (paper: random;
+    #                               from random init they scored 3.8 cm lower at 300k steps each: docs/ges_lanes)
     score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
     # [ours] episodes of the J that scores each TPE search's peak design once more: the 20-episode J from level 28
@@ -333,18 +334,18 @@ QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, 
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=3, ges_warm_start=True,
                peak_episodes=30)
 
-# overnight: one night on 2 cores (`--plan`: 9.8 h with every GES run at its round cap, 11.2 h with a 15 % margin).
+# overnight: one night on 2 cores (`--plan`: 10.3 h with every GES run at its round cap, 11.9 h with a 15 % margin).
 #   - baselines 1.58: 1 M PPO steps per policy, the protocol's milestone (docs/ppo_protocol/new_robot: its e2e MLP
 #     scores 17.8 cm / 28.6 deg there, and 2 M add nothing on the obstacle);
-#   - GES 2.42 + Table III 1.34 + Fig. 7 (K = 1-6) 2.64: 30k steps per specialist and round, F = 10 probes, at
-#     most 10 rounds (facts: 20). The real runs cover faster than the planted landscape: the quick run's D2
-#     reached 95 % in 2-3 rounds of F = 5; 10 rounds of F = 10 give each specialist 100 probes, what the planted
-#     landscape needs in D2 (`python ges.py --sweep`); a run that stops at the cap reports its coverage;
+#   - GES 2.65 + Table III 1.46 + Fig. 7 (K = 1-6) 2.87: 100k steps per specialist and round, F = 10 probes, at
+#     most 6 rounds (facts: 20). The quick run's D2 reached 95 % in 2-3 rounds of F = 5 (D3: 71-78 % after 3), so
+#     a D2 specialist trains ~200-300k steps: at 30k each the specialists scored 2.0 cm below the e2e MLP they
+#     start from, at 300k -0.1 +- 0.7 cm (docs/ges_lanes, 3 seeds); a run that stops at the cap reports its coverage;
 #   - Table II 1.14: 50 test designs (paired CI of GES - e2e MLP ~+-2 cm at the quick run's sd of the paired
 #     differences, 6-7 cm), the paper's 40 TPE trials (10 random first; each trial is one J, cheap), peaks
 #     rescored by a 30-episode J; cost 0.64: 4 per-design BO trials of 1 M steps.
-OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=30_000, ppo_envs=32, ppo_rollout=64,
-                   score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=10,
+OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
+                   score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=6,
                    ges_target_coverage=0.95, ges_probes=10, ges_probe_pool=2000, ges_init_designs=2,
                    ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
                    table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=4, ges_warm_start=True,
