@@ -9,7 +9,7 @@ specialists on the run's test designs, paired with the run's e2e MLP on the same
 'u' (e.g. 32x64u) is the control: the same rounds on uniform designs over the whole space, the e2e MLP's own
 training distribution, so what it changes is what any further PPO steps change, not specialisation. A layout
 with an 's' (e.g. 32x64s) trains the specialists from random init, as the paper's Alg. 1 does. `--rounds` and
-`--round-steps` replace the run's rounds and the preset's steps per round (e.g. overnight's 10 x 30k).
+`--round-steps` replace the run's rounds and the preset's steps per round (e.g. 10 x 30k).
 
     python -m experiments.ges_lanes RUN --task obstacle --space d2 --layouts 32x64,8x256,32x64u --seeds 0,1 --out DIR
     python -m experiments.ges_lanes RUN --layouts 32x64,32x64u,32x64s --rounds 10 --round-steps 30000 --out DIR
@@ -90,7 +90,7 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
     `rounds`: None = the run's; a preset whose ges_round_steps differs from the run's names its own folder."""
     tag = f"{lanes}x{rollout}{variant}_seed{seed}"
     if rounds is not None or preset.ges_round_steps != run_all.PRESETS[preset.name].ges_round_steps:
-        tag += f"_r{rounds}x{preset.ges_round_steps}"
+        tag += f"_r{rounds or 'run'}x{preset.ges_round_steps}"
     folder = os.path.join(out, f"{task}-{sp}", tag)
     done = os.path.join(folder, "result.json")
     if os.path.exists(done):
@@ -167,7 +167,7 @@ def main(argv=None):
     rows += [f"| {n} | {np.mean(v):+.2f} +- {np.std(v, ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0:.2f} |"
              for n, v in per_layout.items()]
     text = "\n".join(rows) + "\n"
-    suffix = f"-r{a.rounds or ''}x{preset.ges_round_steps}" if a.rounds or a.round_steps else ""
+    suffix = f"-r{a.rounds or 'run'}x{preset.ges_round_steps}" if a.rounds or a.round_steps else ""
     open(os.path.join(a.out, f"{task}-{sp}{suffix}.md"), "w").write(text)
     print(text)
 
