@@ -48,6 +48,7 @@ import re
 import shutil
 import subprocess
 import sys
+import threading
 import time
 import warnings
 import zlib
@@ -662,8 +663,6 @@ def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
     """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
     a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
     each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
-    import threading
-
     def watch():
         while os.getppid() == parent_pid:
             time.sleep(every)
@@ -2087,6 +2086,38 @@ def open_output(out: str, manifest: dict, reuse: bool) -> dict:
     return manifest
 
 
+STAGE_CLOCK_S = 60.0   # a stage killed by SIGKILL loses at most this much of its recorded wall time
+
+
+class StageClock:
+    """Adds a stage's wall time to stage_seconds.json every `every` seconds and once more at close(), so an
+    attempt killed by SIGKILL (a session's end), which runs no `finally`, still counts: the overnight run's first
+    attempt, 84 min of its baselines stage, was missing from the file. [ours] A daemon thread ticks."""
+
+    def __init__(self, path: str, name: str, every: float = STAGE_CLOCK_S):
+        self.path, self.name, self.t0 = path, name, time.time()
+        self.base = (redo_if_damaged(path, part="counting the stage times from now on") or {}).get(name, 0.0)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._tick, args=(every,), daemon=True, name=f"clock_{name}")
+        self.thread.start()
+
+    def _write(self) -> None:
+        times = redo_if_damaged(self.path, part="counting the stage times from now on") or {}
+        times[self.name] = self.base + time.time() - self.t0
+        write_json(self.path, times)
+
+    def _tick(self, every: float) -> None:
+        while not self.stop.wait(every):
+            self._write()
+
+    def close(self) -> float:
+        """Stop ticking, write the final time; returns this attempt's seconds."""
+        self.stop.set()
+        self.thread.join()
+        self._write()
+        return time.time() - self.t0
+
+
 def run_stage(run: Run, name: str) -> float:
     """Run one stage unless its result exists; record its wall time (summed over attempts); returns the seconds
     it ran (0 if skipped)."""
@@ -2096,17 +2127,14 @@ def run_stage(run: Run, name: str) -> float:
         return 0.0
     fn = STAGES[name][0]
     say(f"stage {name}: start")
-    t0 = time.time()
+    clock = StageClock(run.path("stage_seconds.json"), name)
     try:
         result = fn(run)
     finally:
-        tp = run.path("stage_seconds.json")
-        times = redo_if_damaged(tp, part="counting the stage times from now on") or {}
-        times[name] = times.get(name, 0.0) + time.time() - t0
-        write_json(tp, times)
+        seconds = clock.close()
     write_json(path, {"stage": name, "result": result})
-    say(f"stage {name}: done in {time.time() - t0:.1f}s")
-    return time.time() - t0
+    say(f"stage {name}: done in {seconds:.1f}s")
+    return seconds
 
 
 ETA_PRIOR_S = 60.0   # the pace starts at 1 as if this much had run to plan: a stage of seconds says little

@@ -2282,6 +2282,39 @@ def test_run_all_pool_workers_exit_when_the_run_is_killed(tmp_path):
     assert not any(_alive(p) for p in pids), [p for p in pids if _alive(p)]
 
 
+_CLOCKED_STAGE = """
+import sys, time
+import run_all
+clock = run_all.StageClock(sys.argv[1], "baselines", every=0.05)
+print("ticking", flush=True)
+time.sleep(60)
+"""
+
+
+def test_run_all_stage_time_survives_sigkill(tmp_path):
+    """A stage's wall time reaches stage_seconds.json while it runs (run_all.StageClock), so an attempt killed by
+    SIGKILL, which runs no `finally`, still counts, added to the earlier attempts' time; close() writes the rest."""
+    import signal
+    path = str(tmp_path / "stage_seconds.json")
+    run_all.write_json(path, {"table1": 1.0, "baselines": 100.0})   # an earlier attempt's 100 s
+    child = subprocess.Popen([sys.executable, "-c", _CLOCKED_STAGE, path], cwd=os.path.dirname(
+        os.path.abspath(__file__)), stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "ticking"
+        t0 = time.time()
+        time.sleep(1.0)
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait()
+    lived = time.time() - t0
+    times = run_all.read_json(path)
+    assert times["table1"] == 1.0 and 100.0 + lived - 0.5 <= times["baselines"] <= 100.0 + lived + 0.5, (lived, times)
+    clock = run_all.StageClock(path, "baselines", every=60)   # the next attempt starts from what the killed one left
+    time.sleep(0.2)
+    assert 0.2 <= clock.close() < 1.0
+    assert abs(run_all.read_json(path)["baselines"] - times["baselines"] - 0.2) < 0.2
+
+
 def test_run_all_progress_eta_counts_parallel_units(capsys):
     """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900."""
     import time
