@@ -2140,14 +2140,18 @@ def run_stage(run: Run, name: str) -> float:
 ETA_PRIOR_S = 60.0   # the pace starts at 1 as if this much had run to plan: a stage of seconds says little
 
 
-def run_eta(planned: dict, ran: dict, left: list) -> str:
-    """The whole run's ETA: plan()'s seconds of the stages left, scaled by the pace so far (seconds the stages run
-    in this call took / their planned seconds, shrunk toward 1 by ETA_PRIOR_S). Skipped stages count for neither."""
+def run_eta(planned: dict, ran: dict, left: list, spent: dict | None = None) -> str:
+    """The whole run's ETA: plan()'s seconds of the stages left, scaled by the pace so far (the recorded seconds of
+    the stages finished in this call / their planned seconds, shrunk toward 1 by ETA_PRIOR_S), less the `spent`
+    seconds earlier attempts already put into a stage left (a resumed run). Skipped stages count for neither."""
+    spent = spent or {}
     done_plan = sum(planned.get(s, 0.0) for s in ran)
     pace = (sum(ran.values()) + ETA_PRIOR_S) / (done_plan + ETA_PRIOR_S)
-    eta = pace * sum(planned.get(s, 0.0) for s in left)
-    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left, " + (
-        f"--plan's time x {pace:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
+    eta = sum(max(0.0, pace * planned.get(s, 0.0) - spent.get(s, 0.0)) for s in left)
+    done = sum(spent.get(s, 0.0) for s in left)
+    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left"
+            + (f" ({done:.0f}s spent on them already)" if done else "") + ", " +
+            (f"--plan's time x {pace:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
 
 
 def main(argv=None) -> int:
@@ -2181,16 +2185,19 @@ def main(argv=None) -> int:
             f"stages {stages}")
         planned = {k: 3600 * v["hours"] for k, v in plan(preset, args.workers).items()}
         todo, ran = [s for s in stages if not stage_done(out, s)], {}
+
+        def recorded() -> dict:   # every attempt's seconds per stage (StageClock)
+            return redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on") or {}
         if todo:
-            say(run_eta(planned, ran, todo))
+            say(run_eta(planned, ran, todo, recorded()))
         try:
             for name in stages:
-                seconds = run_stage(run, name)
-                if seconds:
-                    ran[name] = seconds
+                if run_stage(run, name):
+                    times = recorded()
+                    ran[name] = times.get(name, 0.0)
                     todo.remove(name)
                     if todo:
-                        say(f"{run_eta(planned, ran, todo)}; elapsed {time.time() - t0:.0f}s")
+                        say(f"{run_eta(planned, ran, todo, times)}; elapsed {time.time() - t0:.0f}s")
         finally:
             close_dask_clients()
             report(run, manifest)

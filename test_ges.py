@@ -2315,6 +2315,15 @@ def test_run_all_stage_time_survives_sigkill(tmp_path):
     assert abs(run_all.read_json(path)["baselines"] - times["baselines"] - 0.2) < 0.2
 
 
+def test_run_all_eta_of_a_resumed_run():
+    """A resumed run's ETA counts what earlier attempts spent on a stage left: baselines planned 1000 s with 840 s
+    spent -> 160 s of it left, not 1000 (the overnight run's resume said its full 10.33 h); never below 0."""
+    planned = {"baselines": 1000.0, "ges": 500.0}
+    assert run_all.run_eta(planned, {}, ["baselines", "ges"], {"baselines": 840.0}).startswith(
+        "whole run: eta 660s (0.18 h) for 2 stage(s) left (840s spent on them already)")
+    assert run_all.run_eta(planned, {}, ["baselines"], {"baselines": 5000.0}).startswith("whole run: eta 0s")
+
+
 def test_run_all_progress_eta_counts_parallel_units(capsys):
     """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900."""
     import time
