@@ -2333,6 +2333,12 @@ def test_run_all_progress_eta_counts_parallel_units(capsys):
         p(1)
         eta = float(re.search(r"eta\s+(\d+)s", capsys.readouterr().out).group(1))
         assert abs(eta - want) < 5, (parallel, eta)
+    p = run_all.Progress("jobs", 10, every=0)   # a resumed stage: units 1-2 loaded at once, then 100 s for unit 3
+    p(1), p(2)
+    p.t0 -= 100
+    p(3)
+    etas = re.findall(r"eta\s+(\S+)", capsys.readouterr().out)
+    assert etas[:2] == ["-", "-"] and abs(float(etas[2].rstrip("s")) - 700) < 5, etas   # not 100 / 3 x 7
 
 
 def test_run_all_rates_measure_what_plan_uses(tmp_path):
