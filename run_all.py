@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import glob
 import hashlib
 import json
@@ -1903,7 +1904,7 @@ def report_claims(results: dict) -> list:
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
-    times = redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on") or {}
+    times = stage_times(run.path("stage_seconds.json"))
     sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", report_ksens),
                 ("ges", report_ges_runs), ("cost", report_cost), ("figures", report_figures)]
@@ -2060,7 +2061,7 @@ def repair(run: Run) -> None:
     warning; a damaged GES run stops the run with a one-line error naming the file and what to do."""
     for name in STAGES:
         redo_if_damaged(run.path("stages", f"{name}.json"), stage_json, part=f"redoing stage {name}")
-    redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on")
+    stage_times(run.path("stage_seconds.json"))
     for f in sorted(glob.glob(run.path("scores", "*.json"))):
         redo_if_damaged(f, score_set, part="it is redone when a stage needs it")
     for f in sorted(glob.glob(run.path("tpe", "*.json"))):
@@ -2094,6 +2095,11 @@ def open_output(out: str, manifest: dict, reuse: bool) -> dict:
     return manifest
 
 
+def stage_times(path: str) -> dict:
+    """stage_seconds.json: every attempt's wall seconds per stage (a damaged file is moved aside, counting anew)."""
+    return redo_if_damaged(path, part="counting the stage times from now on") or {}
+
+
 STAGE_CLOCK_S = 60.0   # a stage killed by SIGKILL loses at most this much of its recorded wall time
 
 
@@ -2104,13 +2110,13 @@ class StageClock:
 
     def __init__(self, path: str, name: str, every: float = STAGE_CLOCK_S):
         self.path, self.name, self.t0 = path, name, time.time()
-        self.base = (redo_if_damaged(path, part="counting the stage times from now on") or {}).get(name, 0.0)
+        self.base = stage_times(path).get(name, 0.0)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._tick, args=(every,), daemon=True, name=f"clock_{name}")
         self.thread.start()
 
     def _write(self) -> None:
-        times = redo_if_damaged(self.path, part="counting the stage times from now on") or {}
+        times = stage_times(self.path)
         times[self.name] = self.base + time.time() - self.t0
         write_json(self.path, times)
 
@@ -2193,9 +2199,7 @@ def main(argv=None) -> int:
             f"stages {stages}")
         planned = {k: 3600 * v["hours"] for k, v in plan(preset, args.workers).items()}
         todo, ran = [s for s in stages if not stage_done(out, s)], {}
-
-        def recorded() -> dict:   # every attempt's seconds per stage (StageClock)
-            return redo_if_damaged(run.path("stage_seconds.json"), part="counting the stage times from now on") or {}
+        recorded = functools.partial(stage_times, run.path("stage_seconds.json"))
         if todo:
             say(run_eta(planned, ran, todo, recorded()))
         try:
