@@ -726,6 +726,24 @@ def read_log_rows(path: str) -> list:
     return rows
 
 
+def train_seconds(log_csv: str) -> float:
+    """A policy's training seconds summed over the attempts that made it, from its learning-curve CSV [ours].
+
+    ppo.train's wall_s restarts at each resume, so a stretch ends where wall_s drops; each stretch counts up to
+    its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
+    figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
+    mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
+    rows = read_log_rows(log_csv)
+    col = rows[0].index("wall_s")
+    total, prev = 0.0, 0.0
+    for r in rows[1:]:
+        wall = float(r[col])
+        if wall < prev:   # a resumed attempt's first update
+            total += prev
+        prev = wall
+    return total + prev
+
+
 # ----------------------------------------------------------------------------------------------------------
 # 4. Stages (each a function; each name usable with --only)
 # ----------------------------------------------------------------------------------------------------------
@@ -799,12 +817,6 @@ def train_baseline(run: Run, name: str, kind: str, task: str, sampler) -> str:
                         derive_seed(run.seed, "ppo", name), 1, name)
 
 
-def timed_train(*args) -> tuple:
-    """train_baseline in a pool worker; returns (checkpoint, wall seconds of this policy alone)."""
-    t0 = time.time()
-    return train_baseline(*args), time.time() - t0
-
-
 def stage_baselines(run: Run) -> dict:
     """Train every non-GES policy with the same per-policy budget (ppo_steps). With several workers, one policy
     per worker, each stepping its lanes in its own process. Each policy always steps in-process, so --workers
@@ -813,11 +825,11 @@ def stage_baselines(run: Run) -> dict:
     prog, out = Progress("policies", len(jobs), every=0, parallel=run.workers), {}
     ex = run.pool()
     try:
-        futures = [ex.submit(timed_train, run, *job) for job in jobs]
+        futures = [ex.submit(train_baseline, run, *job) for job in jobs]
         for i, ((name, *_), fut) in enumerate(zip(jobs, futures)):
-            ckpt, seconds = fut.result()
+            ckpt = fut.result()
             out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
-                         "seconds": seconds}
+                         "seconds": train_seconds(os.path.join(os.path.dirname(ckpt), "log.csv"))}
             kill_hook(f"baselines:{name}")
             prog(i + 1, name)
     finally:
@@ -1094,13 +1106,31 @@ class PerDesignBO:
     task: str
     space: ballu.DesignSpace
 
+    def folder(self, theta) -> str:
+        return self.run.path("policies", "bo", self.name(theta))
+
+    @staticmethod
+    def name(theta) -> str:
+        return hashlib.sha1(np.asarray(theta, dtype=float).tobytes()).hexdigest()[:12]
+
     def __call__(self, theta):
-        full = self.space.full(theta)
-        name = hashlib.sha1(np.asarray(theta, dtype=float).tobytes()).hexdigest()[:12]
-        ckpt = train_policy(self.run.path("policies", "bo", name), "mlp", self.task, ballu.FixedDesign(full[0]),
-                            self.run.preset.ppo_steps, self.run.preset, derive_seed(self.run.seed, "bo", name),
-                            1, f"bo {name}")
-        return PolicyJ(ppo.load_policy(ckpt), self.space, self.task, self.run.preset)(theta)
+        full, name, folder = self.space.full(theta), self.name(theta), self.folder(theta)
+        ckpt = train_policy(folder, "mlp", self.task, ballu.FixedDesign(full[0]), self.run.preset.ppo_steps,
+                            self.run.preset, derive_seed(self.run.seed, "bo", name), 1, f"bo {name}")
+        t0 = time.time()
+        y = PolicyJ(ppo.load_policy(ckpt), self.space, self.task, self.run.preset)(theta)
+        write_json(os.path.join(folder, "seconds.json"),
+                   {"train_s": train_seconds(os.path.join(folder, "log.csv")), "score_s": time.time() - t0})
+        return y
+
+    def trial_seconds(self, trial) -> float:
+        """One trial's cost: its training over every attempt plus its J. tpe times only the call that finished
+        the trial, which a resumed training makes too short; a trial without seconds.json keeps tpe's time."""
+        try:
+            sec = read_json(os.path.join(self.folder(trial.x), "seconds.json"))
+            return float(sec["train_s"] + sec["score_s"])
+        except (OSError, *READ_ERRORS):
+            return float(trial.seconds or 0.0)
 
 
 def stage_cost(run: Run) -> dict:
@@ -1110,7 +1140,8 @@ def stage_cost(run: Run) -> dict:
 
     Both sides are counted in core-seconds under one layout [ours]: every job (a policy's training,
     a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
-    once as there are workers, and is timed where it runs. The paper compares wall hours on its machine; with
+    once as there are workers, and is timed where it runs (a training a kill split: every attempt,
+    train_seconds). The paper compares wall hours on its machine; with
     jobs of unequal width (before: a BO trial stepping its env on both cores, GES's jobs sharing them) wall
     times compare layouts, not methods. BO's startup trials are random draws independent of each other, so
     they run `workers` at a time (tpe.startup_batch: the same trials as one at a time)."""
@@ -1123,16 +1154,18 @@ def stage_cost(run: Run) -> dict:
     os.makedirs(run.path("tpe"), exist_ok=True)
 
     def after(study, trial):
-        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} ({trial.seconds:.0f}s)")
+        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} ({bo.trial_seconds(trial):.0f}s)")
         kill_hook(f"cost:trial{trial.index}")
 
+    bo = PerDesignBO(run, t, space)
     with run.pool() as ex:
-        study = tpe.optimize(PerDesignBO(run, t, space), space.lo, space.hi, p.cost_trials,
+        study = tpe.optimize(bo, space.lo, space.hi, p.cost_trials,
                              seed=derive_seed(run.seed, "tpe", t, s),
                              config=tpe.TPEConfig(direction="maximize", n_startup=p.tpe_startup),
                              path=run.path("tpe", f"{t}-{s}-per-design-bo.json"), names=list(space.names),
                              callback=after, verbose=False, executor=ex, parallel=max(1, run.workers))
-    bo_measured = float(sum(tr.seconds or 0.0 for tr in study.trials))
+    bo_trial_s = [bo.trial_seconds(tr) for tr in study.trials]
+    bo_measured = float(sum(bo_trial_s))
     bo_total = bo_measured / len(study.trials) * p.tpe_trials
     # with ges_warm_start the e2e MLP the specialists start from is part of GES's cost
     warm_s = stage_result(run, "baselines")[f"mlp-{t}-{s}"]["seconds"] if p.ges_warm_start else 0.0
@@ -1140,7 +1173,7 @@ def stage_cost(run: Run) -> dict:
     ges_total = warm_s + stage1 + router["seconds"]
     ges_per_trial = router["seconds"] / max(1, router["trials"])
     return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
-            "bo_trial_s": [float(tr.seconds or 0.0) for tr in study.trials], "ges_fixed_s": warm_s + stage1,
+            "bo_trial_s": bo_trial_s, "ges_fixed_s": warm_s + stage1,
             "ges_per_trial_s": ges_per_trial,
             "extrapolated": len(study.trials) < p.tpe_trials, "bo_measured_s": bo_measured, "bo_s": bo_total,
             "ges_warm_start_s": warm_s, "ges_stage1_s": stage1, "ges_tpe_s": router["seconds"], "ges_s": ges_total,

@@ -2324,6 +2324,37 @@ def test_run_all_eta_of_a_resumed_run():
     assert run_all.run_eta(planned, {}, ["baselines"], {"baselines": 5000.0}).startswith("whole run: eta 0s")
 
 
+def test_run_all_train_seconds_counts_every_attempt(tmp_path):
+    """A training resumed after a kill counts both attempts (ppo.train's wall_s restarts at a resume) and not the
+    updates the kill lost past its checkpoint; the cost stage's warm-start e2e MLP and BO trials use it (the
+    overnight run, timed per attempt, counted 0.01 s for an e2e MLP finished before a kill). A BO trial's cost
+    is its seconds.json (training + J), tpe's own time when the file is missing or damaged."""
+    cfg = ppo.PPOConfig(num_envs=8, num_steps=16, design_dim=1)
+    ck, log = str(tmp_path / "p.pt"), str(tmp_path / "log.csv")
+    calls = []
+    for steps in (8 * 16 * 20, 8 * 16 * 40):
+        t0 = time.time()
+        ppo.train("mlp", PointMass(8), None, steps, ck, cfg, seed=0, log_csv=log, progress=None)
+        calls.append(time.time() - t0)
+        if len(calls) == 1:   # a kill after 3 more updates, then the resume's trim
+            with open(log, "a") as fh:
+                fh.writelines(f"{2560 + 128 * i},{99.0 + i}" + ",0" * 9 + "\n" for i in (1, 2, 3))
+            run_all.trim_log(log, 2560)
+    wall = [float(r[1]) for r in run_all.read_log_rows(log)[1:]]
+    assert len(wall) == 40 and wall[20] < wall[19]
+    assert run_all.train_seconds(log) == pytest.approx(wall[19] + wall[39])
+    assert wall[39] < run_all.train_seconds(log) <= sum(calls)
+    run = run_all.Run(str(tmp_path / "run"), run_all.SMOKE, 0, 1)
+    bo = run_all.PerDesignBO(run, "obstacle", run_all.space_of(run_all.SMOKE, "obstacle", "d2"))
+    trial = run_all.tpe.Trial(0, np.array([0.8, 0.01]), 1.0, None, 5.0)
+    assert bo.trial_seconds(trial) == 5.0
+    run_all.write_json(os.path.join(bo.folder(trial.x), "seconds.json"), {"train_s": 100.0, "score_s": 7.0})
+    assert bo.trial_seconds(trial) == 107.0
+    with open(os.path.join(bo.folder(trial.x), "seconds.json"), "w") as fh:
+        fh.write("{")
+    assert bo.trial_seconds(trial) == 5.0
+
+
 def test_run_all_progress_eta_counts_parallel_units(capsys):
     """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900."""
     import time
