@@ -1140,11 +1140,11 @@ def stage_cost(run: Run) -> dict:
 
     Both sides are counted in core-seconds under one layout [ours]: every job (a policy's training,
     a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
-    once as there are workers, and is timed where it runs (a training a kill split: every attempt,
-    train_seconds). The paper compares wall hours on its machine; with
-    jobs of unequal width (before: a BO trial stepping its env on both cores, GES's jobs sharing them) wall
-    times compare layouts, not methods. BO's startup trials are random draws independent of each other, so
-    they run `workers` at a time (tpe.startup_batch: the same trials as one at a time)."""
+    once as there are workers, and is timed where it runs (a training that a kill split: every attempt, by
+    train_seconds). The paper compares wall hours on its machine; with jobs of unequal width (before: a BO trial
+    stepping its env on both cores, GES's jobs sharing them) wall times compare layouts, not methods. BO's
+    startup trials are random draws independent of each other, so they run `workers` at a time
+    (tpe.startup_batch: the same trials as one at a time)."""
     p = run.preset
     t, s = p.cost_task, p.cost_space
     space = space_of(p, t, s)
@@ -1154,7 +1154,8 @@ def stage_cost(run: Run) -> dict:
     os.makedirs(run.path("tpe"), exist_ok=True)
 
     def after(study, trial):
-        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} ({bo.trial_seconds(trial):.0f}s)")
+        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} "
+            f"({bo.trial_seconds(trial):.0f}s)")
         kill_hook(f"cost:trial{trial.index}")
 
     bo = PerDesignBO(run, t, space)
