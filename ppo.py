@@ -5,7 +5,8 @@ Read top to bottom:
   2. running observation normalisation
   3. actor-critics: `MLPActorCritic` (e2e MLP and every GES specialist), `MoEActorCritic` (e2e MoE)
   4. GAE and the PPO update (clipped surrogate, value loss, entropy bonus, adaptive-KL learning rate)
-  5. the trainer: checkpoints, `rollout` (here or in the env's workers), `start_run` (resume, warm start or fresh),
+  5. the trainer: checkpoints (the last, and the best by training level: `scored_path`), `rollout` (here or in
+     the env's workers), `start_run` (resume, warm start or fresh),
      `TrainLog` (CSV + progress line), `train(...)` (rollout -> GAE -> PPO update, curriculum), learning curve
   6. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
   7. benchmark: end-to-end training against stepping the env alone (`python ppo.py --bench`)
@@ -99,6 +100,9 @@ class RunningNorm:
         self.count = tot
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(x - mean) / std, clipped to +-clip. An entry that was constant in training (a single design's
+        design vector) has std ~1e-4, so a value 0.05 % away from the training one already reads as +-clip:
+        score a single-design policy on its own design, exactly as trained (docs/ppo_protocol)."""
         return np.clip((x - self.mean) / np.sqrt(self.var + 1e-8), -self.clip, self.clip).astype(np.float32)
 
     def state(self) -> dict:
@@ -335,6 +339,22 @@ def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, 
     os.replace(tmp, path)
 
 
+def best_path(ckpt: str) -> str:
+    """Where train() keeps the best policy of the run checkpointed at `ckpt`: policy.pt -> policy_best.pt."""
+    root, ext = os.path.splitext(ckpt)
+    return f"{root}_best{ext or '.pt'}"
+
+
+def scored_path(ckpt: str, rule: str = "best") -> str:
+    """The checkpoint of a run that its score uses. rule='best' [facts]: the policy of the best training level
+    (the authors score model_best.pt: the update with the highest mean curriculum level); a run trained
+    before train() kept one falls back to its last checkpoint. rule='last' [ours, an option]: the last one."""
+    if rule not in ("best", "last"):
+        raise ValueError(f"rule={rule!r} must be 'best' or 'last'")
+    best = best_path(ckpt)
+    return best if rule == "best" and os.path.exists(best) else ckpt
+
+
 def load_checkpoint(path) -> dict:
     """torch.load(weights_only=True) with a one-line error for a missing, damaged or foreign file (torch's own
     message is not shown: for a pickle it advises weights_only=False, which a user must not follow)."""
@@ -532,8 +552,12 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     warm-started from it (GES rounds: total_steps = (round + 1) x steps per round); else the policy starts
     fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
     [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
-    Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. Returns a summary of the last
-    iteration.
+    Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. At each checkpoint, if the mean
+    training level over the updates since the last one beats every earlier checkpoint's, the same state also
+    goes to best_path(ckpt) [facts: the authors keep the update with the highest mean level]. [ours] The mean
+    over `ckpt_every` updates, not one update's: 32 lanes' mean level moves by chance from update to update,
+    and a best taken only at checkpoints is rewritten bit for bit by a run resumed after a kill.
+    Returns a summary of the last iteration and the best one.
     """
     if env.num_envs < 1:
         raise ValueError(f"env.num_envs={env.num_envs!r} must be >= 1")
@@ -544,11 +568,12 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
                                                                     start_level)
     if steps >= total_steps:
         return {"steps": steps, "resumed": True}
+    best = _best_so_far(ckpt)
     obs, _ = env.reset(seed=int(rng.integers(2 ** 31)),
                           options={"design_sampler": design_sampler, "levels": levels})
     norm.update(obs)
     T, N = cfg.num_steps, env.num_envs
-    it, ep_returns, acc = 0, deque(maxlen=100), np.zeros(N, dtype=np.float32)
+    it, ep_returns, acc, window = 0, deque(maxlen=100), np.zeros(N, dtype=np.float32), []
     with TrainLog(log_csv, progress, kind, total_steps) as log:
         while steps < total_steps:
             t0 = time.time()
@@ -564,13 +589,26 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
             steps, it = steps + T * N, it + 1
             ep_returns.extend(finished)
             levels = np.asarray(info["levels"])
+            window.append(float(levels.mean()))
             ep_ret = float(np.mean(ep_returns)) if ep_returns else float("nan")   # of the last 100 episodes
-            log.write(steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, float(levels.mean()), st, lr,
+            log.write(steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, window[-1], st, lr,
                       float(std.mean()))
             if it % cfg.ckpt_every == 0 or steps >= total_steps:
-                save_checkpoint(ckpt, policy, opt, norm, kind, cfg, steps, lr, levels, rng, ret_norm=ret_norm)
+                save = lambda path, extra: save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng,
+                                                           extra, ret_norm)
+                if np.mean(window) > best["level"]:   # the best first: a kill in between redoes both
+                    best = {"level": float(np.mean(window)), "steps": steps}
+                    save(best_path(ckpt), {"best": best})
+                save(ckpt, {"best": best})
+                window.clear()
     return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
-            "wall_s": time.time() - log.t_start}
+            "wall_s": time.time() - log.t_start, "best_level": best["level"], "best_steps": best["steps"]}
+
+
+def _best_so_far(ckpt: str) -> dict:
+    """{'level', 'steps'} of the best policy this run saved before (from its checkpoint), or none yet."""
+    none = {"level": -math.inf, "steps": 0}
+    return load_checkpoint(ckpt)["extra"].get("best", none) if os.path.exists(ckpt) else none
 
 
 def plot_learning_curve(log_csv: str, path: str, title: str = ""):

@@ -674,6 +674,49 @@ def test_ppo_solves_a_point_mass(tmp_path):
     assert os.path.exists(ppo.plot_learning_curve(str(tmp_path / "pm.csv"), str(tmp_path / "pm.png")))
 
 
+class PointMassLevels(PointMass):
+    """The point mass with a curriculum level that a schedule sets after the u-th update of 40 steps: -(u - 14)^2,
+    but 5 at u = 12 (one lucky update); u counts from `first_update` (a resumed run's env goes on where the
+    stopped one ended)."""
+
+    def __init__(self, num_envs=16, first_update=0):
+        super().__init__(num_envs)
+        self.calls = first_update * 40
+
+    def step(self, a):
+        out = super().step(a)
+        self.calls += 1
+        u = math.ceil(self.calls / 40)
+        out[-1]["levels"] = np.full(self.num_envs, 5.0 if u == 12 else -float((u - 14) ** 2))
+        return out
+
+
+def test_ppo_keeps_the_policy_of_the_best_level_and_a_resumed_run_carries_it(tmp_path):
+    """Checkpoints every 3 updates; the best 3-update mean level is that of updates 13-15 (-2/3, against -20/3
+    for 10-12 with its lucky 5, and -29/3 for 16-18): the best policy is the checkpoint at update 15, 15 x 640
+    steps, neither the last (30) nor the lucky update's (12). A run stopped at update 18 and resumed keeps that
+    best file untouched: the resumed windows (-110/3 and lower) do not beat the best level it carries."""
+    cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4, ckpt_every=3)
+    ck, ck2 = str(tmp_path / "a.pt"), str(tmp_path / "b.pt")
+    out = ppo.train("mlp", PointMassLevels(16), None, 30 * cfg.batch, ck, cfg, seed=0, progress=None)
+    best = ppo.load_checkpoint(ppo.best_path(ck))
+    assert (out["best_steps"], best["steps"]) == (15 * cfg.batch, 15 * cfg.batch), out
+    assert out["best_level"] == pytest.approx(-2 / 3) and best["extra"]["best"]["level"] == pytest.approx(-2 / 3)
+    assert ppo.load_checkpoint(ck)["steps"] == 30 * cfg.batch
+    ppo.train("mlp", PointMassLevels(16), None, 18 * cfg.batch, ck2, cfg, seed=0, progress=None)
+    first = ppo.load_checkpoint(ppo.best_path(ck2))
+    out = ppo.train("mlp", PointMassLevels(16, first_update=18), None, 30 * cfg.batch, ck2, cfg, seed=0,
+                    progress=None)
+    again = ppo.load_checkpoint(ppo.best_path(ck2))
+    assert first["steps"] == again["steps"] == out["best_steps"] == 15 * cfg.batch
+    for k, w in first["policy"].items():
+        assert torch.equal(w, again["policy"][k]), k
+    assert ppo.scored_path(ck) == ppo.best_path(ck) and ppo.scored_path(ck, "last") == ck
+    assert ppo.scored_path(str(tmp_path / "none.pt")) == str(tmp_path / "none.pt")   # trained before: the last
+    with pytest.raises(ValueError, match="rule='top' must be 'best' or 'last'"):
+        ppo.scored_path(ck, "top")
+
+
 def test_ppo_adaptive_kl_rate_is_clamped_at_max_lr(tmp_path):
     """PPOConfig.max_lr caps the adaptive-KL rate (ours 1e-3, the facts 1e-2): on the point mass the KL
     stays small, so the rate grows x1.5 per minibatch until it meets the cap, and never passes it."""
@@ -977,6 +1020,8 @@ def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     assert (tmp_path / "protocol_curves.png").exists() and (tmp_path / "before/obstacle/seed1/result_256.json").exists()
     seed0 = tmp_path / "before/obstacle/seed0"
     assert sorted(p.name for p in seed0.glob("*.pt")) == ["policy_128.pt", "policy_256.pt"]
+    best = json.loads((seed0 / "result_256.json").read_text())   # the best policy is one of the two, not a copy
+    assert best["best_file"] == f"policy_{best['best_steps']}.pt" and best["best_steps"] in (128, 256)
     stamp = os.path.getmtime(seed0 / "policy_256.pt")
     assert ppo_protocol.protocol(str(tmp_path), **kw) == text
     assert os.path.getmtime(seed0 / "policy_256.pt") == stamp

@@ -79,11 +79,15 @@ def protocol_designs(n_designs: int = 12) -> np.ndarray:
     return ballu.d2().full(ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs))
 
 
-def run_one(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg, rescore=False):
+def run_one(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg, rescore=False,
+            sampler=None):
     """Train one (setting, task, seed) to each milestone in turn; J on the held-out designs at each one.
-    Resumable: a milestone's result is kept in result_<steps>.json with its checkpoint policy_<steps>.pt; the
-    running checkpoint policy.pt exists only while training (a later milestone resumes from the last
-    policy_<steps>.pt). rescore: a result scored on another CPU model
+    `sampler` draws the training designs (default uniform D2; a ballu.FixedDesign for single-design runs).
+    J is the best policy's (ppo.scored_path [facts]), J_last the last one's. Resumable: a milestone's result is
+    kept in result_<steps>.json with its checkpoint policy_<steps>.pt and, if the best policy is an earlier one,
+    best_<its steps>.pt (one file per policy, named by its steps); the running checkpoints policy.pt and
+    policy_best.pt exist only while training (a later milestone resumes from the last policy_<steps>.pt, whose
+    best level it carries). rescore: a result scored on another CPU model
     is scored again here from its policy_<steps>.pt (J differs between CPU models, see cpu_model), kept beside the
     first score under "rescored", and returned in its place, so one table holds one machine's scores."""
     os.makedirs(folder, exist_ok=True)
@@ -107,7 +111,7 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
                 res = json.load(f)
             if rescore and res.get("cpu") != here:
                 if here not in res.setdefault("rescored", {}):
-                    J, secs = score(os.path.join(folder, f"policy_{m}.pt"))
+                    J, secs = score(os.path.join(folder, res.get("best_file", f"policy_{m}.pt")))
                     res["rescored"][here] = {"J": J.tolist(), "mean_J": float(J.mean()),
                                              "rescore_s": secs}   # the run's wall time stays its own
                     with open(path, "w") as f:
@@ -122,21 +126,44 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
         env = ballu.make_env(cfg.num_envs, workers, bcfg)
         t0 = time.time()
         try:
-            summary = ppo.train("mlp", env, ballu.UniformDesign(ballu.d2()), m, ckpt, cfg, seed=seed,
+            summary = ppo.train("mlp", env, sampler or ballu.UniformDesign(ballu.d2()), m, ckpt, cfg, seed=seed,
                                 start_level=start_level, log_csv=log_csv, progress=None)
         finally:
             env.close()
         train_s = time.time() - t0
         last = os.path.join(folder, f"policy_{m}.pt")
         os.replace(ckpt, last)   # one copy of each checkpoint in the folder
-        J, score_s = score(last)
+        best_file, best = _keep_best(folder, ckpt, m, out)
+        J_last, score_s = score(last)
+        J, best_s = (J_last, 0.0) if best_file == os.path.basename(last) else score(os.path.join(folder, best_file))
         level = float(np.mean(ppo.load_checkpoint(last)["levels"].numpy()))
         res = {"steps": m, "J": J.tolist(), "mean_J": float(J.mean()), "train_level": level,
-               "train_s": train_s, "score_s": score_s, "resumed": bool(summary.get("resumed")), "cpu": here}
+               "J_last": J_last.tolist(), "mean_J_last": float(J_last.mean()), "best_file": best_file, **best,
+               "train_s": train_s, "score_s": score_s + best_s, "resumed": bool(summary.get("resumed")),
+               "cpu": here}
         with open(path, "w") as f:
             json.dump(res, f)
         out.append(res)
     return out
+
+
+def _keep_best(folder, ckpt, m, earlier):
+    """After training to milestone m: the file of the best policy so far (policy_<m>.pt if it is the last one,
+    else best_<its steps>.pt, moved there from the running policy_best.pt) and its {best_steps, best_level}.
+    No policy_best.pt means no new best since the previous milestone, whose best file stands."""
+    running = ppo.best_path(ckpt)
+    if not os.path.exists(running):
+        prev = earlier[-1]   # (a result written before best policies were kept: its last policy)
+        return prev.get("best_file", f"policy_{prev['steps']}.pt"), {"best_steps": prev.get("best_steps", prev["steps"]),
+                                                                   "best_level": prev.get("best_level", math.nan)}
+    state = ppo.load_checkpoint(running)
+    best = {"best_steps": int(state["steps"]), "best_level": float(state["extra"]["best"]["level"])}
+    name = f"policy_{m}.pt" if best["best_steps"] == m else f"best_{best['best_steps']}.pt"
+    if name == f"policy_{m}.pt":
+        os.remove(running)   # the same policy as the milestone's checkpoint
+    else:
+        os.replace(running, os.path.join(folder, name))
+    return name, best
 
 
 def cpu_model() -> str:
@@ -162,38 +189,46 @@ def _mean_se(values) -> str:
 def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(0, 1, 2),
              milestones=(1_000_000, 2_000_000), n_designs: int = 12, episodes: int = 20, workers: int = 2,
              base_cfg: ppo.PPOConfig = ppo.PPOConfig(), progress=print, rescore: bool = False,
-             table: str = "protocol") -> str:
+             table: str = "protocol", design=None) -> str:
     """e2e MLP trained on uniform D2 designs per (setting, task, seed); J over `n_designs` fixed held-out D2 designs
     at each milestone; a table (mean and standard error over seeds) in out/<table>.md and the training-level
     curves in out/<table>_curves.png. All settings share designs, budgets, seeds and code. Resumable.
-    rescore: results scored on another CPU model are scored again on this one (run_one)."""
+    rescore: results scored on another CPU model are scored again on this one (run_one).
+    design: train on this one design (l_f, l_t, gcr, spcf) and score on it, exactly as trained (a constant
+    design entry has ~zero variance in the observation normaliser: ppo.RunningNorm)."""
     unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
     if unknown:
         raise ValueError(f"settings {unknown} unknown: one of {sorted(PROTOCOL_SETTINGS)}")
-    designs = protocol_designs(n_designs)
+    designs = protocol_designs(n_designs) if design is None else np.array([design], dtype=float)
+    sampler = None if design is None else ballu.FixedDesign(design)
+    what = (f"{n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED})" if design is None else
+            f"the one design trained on, {tuple(design)}")
     runs = [(s, t, seed) for s in settings for t in tasks for seed in seeds]
     results, t_start = {}, time.time()
     for i, (s, t, seed) in enumerate(runs):
         folder = os.path.join(out, s, t, f"seed{seed}")
         results[(s, t, seed)] = run_one(folder, PROTOCOL_SETTINGS[s], t, seed, milestones, designs, episodes,
-                                        workers, base_cfg, rescore)
+                                        workers, base_cfg, rescore, sampler)
         if progress:
             eta = (time.time() - t_start) / (i + 1) * (len(runs) - i - 1)
             last = results[(s, t, seed)][-1]
             progress(f"protocol {i + 1}/{len(runs)}: {s} {t} seed {seed}: J {last['mean_J']:.1f}, training level "
                      f"{last['train_level']:.1f}  (eta {eta / 60:.0f} min)")
     rows = ["| setting | task | " + " | ".join(f"J at {m:,} steps" for m in milestones)
-            + " | training level at the end | wall time per seed |", "|---|---|" + "---|" * (len(milestones) + 2)]
+            + " | J of the last policy at the end | training level at the end | wall time per seed |",
+            "|---|---|" + "---|" * (len(milestones) + 3)]
     for s in settings:
         for t in tasks:
             rs = [results[(s, t, seed)] for seed in seeds]
             cells = [_mean_se([r[k]["mean_J"] for r in rs]) for k in range(len(milestones))]
             wall = np.mean([sum(x["train_s"] + x["score_s"] for x in r) for r in rs]) / 60
-            rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {_mean_se([r[-1]['train_level'] for r in rs])} "
-                        f"| {wall:.0f} min |")
+            last = _mean_se([r[-1].get("mean_J_last", r[-1]["mean_J"]) for r in rs])
+            rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {last} | "
+                        f"{_mean_se([r[-1]['train_level'] for r in rs])} | {wall:.0f} min |")
     cpus = sorted({x.get("cpu", "not recorded") for r in results.values() for x in r})
-    text = (f"J over {n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED}), {episodes} episodes each; "
-            f"mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg (ramp).\n\n" + "\n".join(rows)
+    text = (f"J over {what}, {episodes} episodes each, of the best policy by training level (results of runs "
+            f"that kept none: the last); mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg "
+            f"(ramp).\n\n" + "\n".join(rows)
             + f"\n\nScored on: {'; '.join(cpus)}" + (" (J differs between CPU models: compare scores made on one)"
                                                     if len(cpus) > 1 else "") + "\n" + _rescore_lines(results, tasks))
     with open(os.path.join(out, f"{table}.md"), "w") as f:
@@ -264,6 +299,8 @@ def main(argv=None):
     ap.add_argument("--rescore", action="store_true", help="score again on this CPU model the results scored on "
                     "another (J differs between CPU models), and table this machine's scores")
     ap.add_argument("--table", default="protocol", help="the table's name (NAME.md, NAME_curves.png)")
+    ap.add_argument("--design", default=None, help="l_f,l_t,gcr,spcf: train on this one design and score on it "
+                    "(default: uniform D2, scored on the 12 held-out designs)")
     args = ap.parse_args(argv)
     settings, tasks = args.settings.split(","), args.tasks.split(",")
     for name, values, allowed in (("--settings", settings, PROTOCOL_SETTINGS), ("--tasks", tasks, ballu.TASKS)):
@@ -275,8 +312,14 @@ def main(argv=None):
         ap.error(f"--workers {args.workers} must be >= 1")
     if not args.table or os.sep in args.table:
         ap.error(f"--table {args.table!r} must be a plain file name (no {os.sep!r})")
+    design = None
+    if args.design is not None:
+        try:
+            design = ballu.check_design([float(v) for v in args.design.split(",")], what="--design")[0].tolist()
+        except ValueError as e:
+            ap.error(f"--design {args.design!r}: four numbers l_f,l_t,gcr,spcf in the design space ({e})")
     print(protocol(args.out, settings, tasks, seeds, milestones, workers=args.workers, rescore=args.rescore,
-                   table=args.table))
+                   table=args.table, design=design))
 
 
 if __name__ == "__main__":
