@@ -250,6 +250,28 @@ def test_ballu_design_hold_keeps_a_lane_on_its_design_for_that_many_episodes():
     np.testing.assert_array_equal(three[0], one[0])          # the same first draw from the same lane seed
 
 
+def test_ballu_random_first_episode_cuts_each_lanes_first_episode_at_its_own_step():
+    """random_first_episode: a lane's first episode starts at a seeded random step of its episode_steps, so it
+    ends after the rest of them, each lane at its own time; the next episodes are whole. score ignores it."""
+    cfg = replace(BalluConfig(), episode_steps=12, random_first_episode=True)
+    env = BalluEnv(3, cfg, design_sampler=d2_sampler)
+    env.reset(seed=5)
+    start = env.t.copy()
+    assert len(set(start.tolist())) == 3 and start.min() >= 0 and start.max() < 12, start
+    ends = []
+    for k in range(1, 30):
+        ends += [(int(i), k) for i in np.flatnonzero(env.step(np.full((3, 2), 0.5))[3])]
+    env.close()
+    for i in range(3):   # truncated after 12 - t0 steps, then after every further 12
+        assert [k for lane, k in ends if lane == i] == [k for k in range(1, 30) if (k + start[i]) % 12 == 0], i
+    env = BalluEnv(3, replace(cfg, random_first_episode=False), design_sampler=d2_sampler)
+    env.reset(seed=5)
+    assert not env.t.any()
+    env.close()
+    walk = lambda c: ballu.score(ballu.PumpGait(12), [BASELINE], episodes=1, cfg=c, final_x=True)[1]
+    np.testing.assert_array_equal(walk(replace(BalluConfig(), random_first_episode=True)), walk(BalluConfig()))
+
+
 def test_ballu_curriculum_rule():
     assert list(ballu.curriculum_update("obstacle", [5, 5, 5, 74, 0], [1.01, 0.7, 0.49, 3.0, -1.0])) == [6, 5, 4, 74, 0]
     assert list(ballu.curriculum_update("ramp", [40, 40, 40], [1.71, 1.5, 1.29])) == [41, 40, 39]

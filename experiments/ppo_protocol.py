@@ -66,6 +66,9 @@ PROTOCOL_SETTINGS = {
     # design for the whole run (4096 envs, 4096 designs; docs/facts.md); with 32 lanes we hold it a while
     "hold10": {**LR_CAP, "design_hold": 10},                       # a new design every 10th episode
     "hold40": {**LR_CAP, "design_hold": 40},                       # every 40th: ~2 designs per lane per M steps
+    # the authors' schedule: each lane's first episode is cut at a random step, so the 32 lanes' episodes
+    # no longer begin together and a rollout holds every phase of an episode (ballu.BalluConfig)
+    "rand_start": {**LR_CAP, "random_first_episode": True},
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
