@@ -377,6 +377,13 @@ class BalluConfig:
     # reset at once, a 64-step rollout would hold the same ~3 s of every episode (only approaches, or only
     # the box). Off by default until screened (docs/ppo_protocol); `score` always plays whole episodes.
     random_first_episode: bool = False
+    # [ours, an option] a low-pass filter on the servo command: each control step applies
+    # beta * (last applied action) + (1 - beta) * (new action clipped to [0, 1]), and the observation's "last
+    # action" is the applied one. White policy noise then moves the knees as noise correlated in time (what the
+    # robot feels), while PPO's log-probabilities and KL stay those of the Gaussian, so the adaptive rate is
+    # not starved as it was with correlated noise in the policy (docs/ppo_protocol). beta = exp(-2 pi f / 20 Hz)
+    # for a cut-off f: 0.53 at 2 Hz, 0.21 at 5 Hz. 0 = off (the paper's env).
+    action_smoothing: float = 0.0
     # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
     terrain_width: float = 10.0
@@ -687,6 +694,8 @@ def check_config(cfg: BalluConfig):
             raise ValueError(f"{name}={v!r} must be an integer in [1, {top}]")
     if cfg.substeps_fine < cfg.substeps:
         raise ValueError(f"substeps_fine={cfg.substeps_fine} must be >= substeps={cfg.substeps}")
+    if not 0 <= cfg.action_smoothing < 1:   # (NaN fails too)
+        raise ValueError(f"action_smoothing={cfg.action_smoothing!r} must lie in [0, 1)")
     for name in ("drag_coef", "passive_damping", "fine_speed"):
         v = getattr(cfg, name)
         if not (isinstance(v, (int, float)) and 0 <= v < math.inf):
@@ -947,6 +956,9 @@ class BalluEnv:
         if not self._ready:
             raise RuntimeError("call reset() before step()")
         a = check_actions(actions, self.num_envs)
+        if self.cfg.action_smoothing:   # the filtered command (see BalluConfig.action_smoothing)
+            b = self.cfg.action_smoothing
+            a = b * self.last_action + (1.0 - b) * np.clip(a, 0.0, 1.0)
         self._servo_goal = servo_target(a).tolist()
         self.last_action[:] = a
         for _ in range(self.cfg.decimation):

@@ -272,6 +272,20 @@ def test_ballu_random_first_episode_cuts_each_lanes_first_episode_at_its_own_ste
     np.testing.assert_array_equal(walk(replace(BalluConfig(), random_first_episode=True)), walk(BalluConfig()))
 
 
+def test_ballu_action_smoothing_applies_an_exponential_filter_that_the_observation_shows():
+    """action_smoothing=beta: after k steps of action 1 (or 3, clipped to 1) from the start command a0, the
+    applied command is 1 - beta^k (1 - a0), and it is what the observation's last-action entries hold."""
+    beta = 0.6
+    env = BalluEnv(2, replace(BalluConfig(), action_smoothing=beta))
+    env.reset(seed=0, options={"designs": BASELINE, "levels": 0})
+    a0 = env.last_action[0, 0]
+    for k in range(1, 4):
+        obs = env.step(np.array([[1.0, 1.0], [3.0, 1.0]]))[0]
+        a_l = ballu.OBS_NAMES.index("a_l")
+        np.testing.assert_allclose(obs[:, a_l:a_l + 2], 1 - beta ** k * (1 - a0), rtol=1e-6)
+    env.close()
+
+
 def test_ballu_curriculum_rule():
     assert list(ballu.curriculum_update("obstacle", [5, 5, 5, 74, 0], [1.01, 0.7, 0.49, 3.0, -1.0])) == [6, 5, 4, 74, 0]
     assert list(ballu.curriculum_update("ramp", [40, 40, 40], [1.71, 1.5, 1.29])) == [41, 40, 39]
@@ -532,7 +546,8 @@ def test_ballu_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch
                                            ({"substeps_fine": 2}, "substeps_fine=2 must be >= substeps=4"),
                                            ({"drag_coef": -0.1}, "drag_coef=-0.1 must be a finite number >= 0"),
                                            ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite"),
-                                           ({"design_hold": 0}, r"design_hold=0 must be an integer in \[1, ")])
+                                           ({"design_hold": 0}, r"design_hold=0 must be an integer in \[1, "),
+                                           ({"action_smoothing": 1.0}, r"action_smoothing=1.0 must lie in \[0, 1\)")])
 def test_ballu_bad_simulator_settings_name_the_field(change, match):
     with pytest.raises(ValueError, match=match):
         BalluEnv(1, replace(BalluConfig(), **change))

@@ -69,6 +69,9 @@ PROTOCOL_SETTINGS = {
     # the authors' schedule: each lane's first episode is cut at a random step, so the 32 lanes' episodes
     # no longer begin together and a rollout holds every phase of an episode (ballu.BalluConfig)
     "rand_start": {**LR_CAP, "random_first_episode": True},
+    # exploration correlated in time where the robot feels it: the servo command low-passed at ~2 Hz inside the
+    # env (ballu.BalluConfig.action_smoothing), the policy's noise and KL left white
+    "smooth2hz": {**LR_CAP, "action_smoothing": 0.53},
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
