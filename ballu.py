@@ -384,6 +384,15 @@ class BalluConfig:
     # not starved as it was with correlated noise in the policy (docs/ppo_protocol). beta = exp(-2 pi f / 20 Hz)
     # for a cut-off f: 0.53 at 2 Hz, 0.21 at 5 Hz. 0 = off (the paper's env).
     action_smoothing: float = 0.0
+    # [ours, an option] Policies Modulating Trajectory Generators (Iscen et al. 2018): the policy acts with 4
+    # numbers (c_l, c_r, f, A), and knee k gets c_k + 0.5 A sin(2 pi phase) (A clipped to [0, 1]; the result to
+    # the servo range): a pump of both knees together, which open-loop search finds clearing 13-62 cm on the
+    # protocol's designs (docs/capability), around centres c_k the policy sets. The phase advances by
+    # tg_freq[0] + f (tg_freq[1] - tg_freq[0]) (f clipped to [0, 1]) per second; the observation shows its sine
+    # and cosine. A policy's mean action 0.5 starts as a 2.75 Hz pump of half amplitude. Off: the paper's two
+    # knee commands.
+    tg: bool = False
+    tg_freq: tuple = (0.5, 5.0)           # Hz for f = 0 .. 1: pump periods of 40 .. 4 control steps
     # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
     terrain_width: float = 10.0
@@ -640,6 +649,13 @@ OBS_NAMES = (["vx", "vy", "vz", "wx", "wy", "wz"] + [f"q_{j}" for j in ("neck", 
              + [f"qd_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
              + ["a_l", "a_r", "dist_to_terrain", "terrain_height"] + [f"design_{n}" for n in DESIGN_NAMES])
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
+_A = OBS_NAMES.index("a_r") + 1
+TG_OBS_NAMES = OBS_NAMES[:_A] + ["tg_sin", "tg_cos"] + OBS_NAMES[_A:]   # with BalluConfig.tg: its phase after a_l, a_r
+
+
+def dims(cfg: BalluConfig) -> tuple:
+    """(obs_dim, act_dim) of the env under cfg: the paper's, or with the trajectory generator's (cfg.tg)."""
+    return (len(TG_OBS_NAMES), 4) if cfg.tg else (OBS_DIM, ACT_DIM)
 
 
 def bullet_substeps(n: int) -> int:
@@ -694,6 +710,9 @@ def check_config(cfg: BalluConfig):
             raise ValueError(f"{name}={v!r} must be an integer in [1, {top}]")
     if cfg.substeps_fine < cfg.substeps:
         raise ValueError(f"substeps_fine={cfg.substeps_fine} must be >= substeps={cfg.substeps}")
+    lo, hi = cfg.tg_freq
+    if not 0 < lo < hi < math.inf:
+        raise ValueError(f"tg_freq={cfg.tg_freq!r} must be (low, high) Hz with 0 < low < high")
     if not 0 <= cfg.action_smoothing < 1:   # (NaN fails too)
         raise ValueError(f"action_smoothing={cfg.action_smoothing!r} must lie in [0, 1)")
     for name in ("drag_coef", "passive_damping", "fine_speed"):
@@ -727,7 +746,7 @@ class BalluEnv:
         self.cfg, self.num_envs, self.curriculum = cfg, int(num_envs), curriculum
         self.design_sampler = design_sampler
         self.lane_ids = np.arange(num_envs) if lane_ids is None else np.asarray(lane_ids)
-        self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
+        self.obs_dim, self.act_dim = dims(cfg)
         n, B = self.num_envs, cfg.lanes_per_world
         self.worlds = [_World(cfg) for _ in range(-(-n // B))]
         self._world = [self.worlds[i // B] for i in range(n)]   # lane i -> its world
@@ -749,6 +768,7 @@ class BalluEnv:
         self._mass, self._gcr, self._spcf = [0.0] * n, [0.0] * n, [0.0] * n
         self._toe_len = np.zeros(n)      # knee to the foot's tip (m)
         self.last_action = np.zeros((n, 2))
+        self.tg_phase = np.zeros(n)      # cycles of the trajectory generator (cfg.tg)
         self.t = np.zeros(n, dtype=np.int64)
         self.ep_return = np.zeros(n)
         self._held = np.zeros(n, dtype=np.int64)   # episodes a lane has begun on its sampled design
@@ -841,6 +861,7 @@ class BalluEnv:
         self._load_robot(i, self.designs[i])
         self.t[i] = 0
         self.ep_return[i] = 0.0
+        self.tg_phase[i] = 0.0
 
     def set_design_sampler(self, sampler):
         self.design_sampler = sampler
@@ -949,13 +970,24 @@ class BalluEnv:
         g = task_geometry(self.cfg.task)
         cue = np.stack([g["x0"] - pos[:, 0], level_height(self.cfg.task, self.levels)], axis=1)
         vel_b = np.concatenate([to_base_frame(orn, vel[:, :3]), to_base_frame(orn, vel[:, 3:])], axis=1)
-        return np.concatenate([vel_b, jq, jqd, self.last_action, cue, normalise_design(self.designs)],
+        tg = ([np.sin(2 * np.pi * self.tg_phase)[:, None], np.cos(2 * np.pi * self.tg_phase)[:, None]]
+              if self.cfg.tg else [])
+        return np.concatenate([vel_b, jq, jqd, self.last_action, *tg, cue, normalise_design(self.designs)],
                               axis=1).astype(np.float32)
+
+    def _tg_command(self, a):
+        """The knee commands of the trajectory generator (cfg.tg) for actions (c_l, c_r, f, A); advances the phase."""
+        lo, hi = self.cfg.tg_freq
+        self.tg_phase = (self.tg_phase + (lo + (hi - lo) * np.clip(a[:, 2], 0, 1)) * self.cfg.control_dt) % 1.0
+        swing = 0.5 * np.clip(a[:, 3], 0, 1) * np.sin(2 * np.pi * self.tg_phase)
+        return np.clip(a[:, :2] + swing[:, None], 0.0, 1.0)
 
     def step(self, actions):
         if not self._ready:
             raise RuntimeError("call reset() before step()")
-        a = check_actions(actions, self.num_envs)
+        a = check_actions(actions, self.num_envs, self.act_dim)
+        if self.cfg.tg:
+            a = self._tg_command(a)
         if self.cfg.action_smoothing:   # the filtered command (see BalluConfig.action_smoothing)
             b = self.cfg.action_smoothing
             a = b * self.last_action + (1.0 - b) * np.clip(a, 0.0, 1.0)
@@ -1182,7 +1214,7 @@ class VecBallu:
             raise ValueError(f"num_envs={num_envs!r} must be an integer >= workers={workers}")
         check_config(cfg)
         self.num_envs, self.cfg = int(num_envs), cfg
-        self.obs_dim, self.act_dim = OBS_DIM, ACT_DIM
+        self.obs_dim, self.act_dim = dims(cfg)
         self.splits = np.array_split(np.arange(num_envs), workers)
         self.pool = WorkerPool(workers, timeout)
         self.pool.call(_env_open, [(len(ids), cfg, ids, curriculum) for ids in self.splits])
@@ -1227,7 +1259,7 @@ class VecBallu:
         return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
 
     def step(self, actions):
-        a = check_actions(actions, self.num_envs)
+        a = check_actions(actions, self.num_envs, self.act_dim)
         outs = self.pool.call(_env_call, [("step", part) for part in self._split(a)])
         return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
 
@@ -1247,11 +1279,11 @@ class VecBallu:
         self.pool.close()
 
 
-def check_actions(actions, n: int) -> np.ndarray:
-    """Actions as a float (n, ACT_DIM) array, or a clear error (wrong shape, NaN or inf)."""
+def check_actions(actions, n: int, act_dim: int = ACT_DIM) -> np.ndarray:
+    """Actions as a float (n, act_dim) array, or a clear error (wrong shape, NaN or inf)."""
     a = np.asarray(actions, dtype=float)
-    if a.shape != (n, ACT_DIM):
-        raise ValueError(f"actions must have shape ({n}, {ACT_DIM}), got {a.shape}")
+    if a.shape != (n, act_dim):
+        raise ValueError(f"actions must have shape ({n}, {act_dim}), got {a.shape}")
     if not np.isfinite(a).all():
         raise ValueError("actions contain non-finite values (NaN or inf)")
     return a
@@ -1348,8 +1380,9 @@ def _score_play(state, until):
             actions = policy(s["obs"])
         else:   # a pure policy acts row by row: only the lanes still playing are asked
             playing = count < episodes
-            actions = np.zeros((len(count), ACT_DIM))
-            actions[playing] = policy(s["obs"][playing])
+            some = policy(s["obs"][playing])
+            actions = np.zeros((len(count), np.shape(some)[1]))
+            actions[playing] = some
         s["obs"], _, _, _, info = env.step(actions)
         done = info["_final_obs"] & (count < episodes)
         if done.any():

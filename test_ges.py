@@ -286,6 +286,31 @@ def test_ballu_action_smoothing_applies_an_exponential_filter_that_the_observati
     env.close()
 
 
+@pytest.mark.parametrize("workers", [0, 2])
+def test_ballu_trajectory_generator_pumps_both_knees_around_the_policys_centres(workers):
+    """tg: actions (c_l, c_r, f, A) give knee commands c_k + 0.5 A sin(2 pi phase), clipped to [0, 1], the phase
+    advancing (0.5 + 4.5 f) Hz x 0.05 s per step; the observation shows the commands and sin, cos of the phase,
+    the design still last. In one process (0) and in worker processes (VecBallu)."""
+    cfg = replace(BalluConfig(), tg=True)
+    env = BalluEnv(2, cfg) if workers == 0 else ballu.make_env(2, workers, cfg)
+    assert (env.obs_dim, env.act_dim) == (len(ballu.TG_OBS_NAMES), 4) == (ballu.OBS_DIM + 2, 4)
+    env.reset(seed=0, options={"designs": BASELINE, "levels": 0})
+    act = np.array([[0.5, 0.3, 0.2, 1.0], [0.9, 0.1, 1.0, 0.4]])
+    names = list(ballu.TG_OBS_NAMES)
+    a_l, s = names.index("a_l"), names.index("tg_sin")
+    for k in range(1, 4):
+        obs = env.step(act)[0]
+        phase = k * (0.5 + 4.5 * act[:, 2]) * 0.05
+        command = np.clip(act[:, :2] + 0.5 * act[:, 3:4] * np.sin(2 * np.pi * phase)[:, None], 0, 1)
+        np.testing.assert_allclose(obs[:, a_l:a_l + 2], command, atol=1e-6)
+        np.testing.assert_allclose(obs[:, s:s + 2], np.stack([np.sin(2 * np.pi * phase), np.cos(2 * np.pi * phase)], 1),
+                                   atol=1e-6)
+        np.testing.assert_allclose(obs[:, -4:], ballu.normalise_design(np.tile(BASELINE, (2, 1))), atol=1e-6)
+    with pytest.raises(ValueError, match=r"actions must have shape \(2, 4\)"):
+        env.step(np.zeros((2, 2)))
+    env.close()
+
+
 def test_ballu_curriculum_rule():
     assert list(ballu.curriculum_update("obstacle", [5, 5, 5, 74, 0], [1.01, 0.7, 0.49, 3.0, -1.0])) == [6, 5, 4, 74, 0]
     assert list(ballu.curriculum_update("ramp", [40, 40, 40], [1.71, 1.5, 1.29])) == [41, 40, 39]
@@ -547,7 +572,8 @@ def test_ballu_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch
                                            ({"drag_coef": -0.1}, "drag_coef=-0.1 must be a finite number >= 0"),
                                            ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite"),
                                            ({"design_hold": 0}, r"design_hold=0 must be an integer in \[1, "),
-                                           ({"action_smoothing": 1.0}, r"action_smoothing=1.0 must lie in \[0, 1\)")])
+                                           ({"action_smoothing": 1.0}, r"action_smoothing=1.0 must lie in \[0, 1\)"),
+                                           ({"tg_freq": (2.0, 1.0)}, r"tg_freq=\(2.0, 1.0\) must be \(low, high\)")])
 def test_ballu_bad_simulator_settings_name_the_field(change, match):
     with pytest.raises(ValueError, match=match):
         BalluEnv(1, replace(BalluConfig(), **change))

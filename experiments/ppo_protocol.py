@@ -75,6 +75,8 @@ PROTOCOL_SETTINGS = {
     # the authors' update shape scaled to 2 cores: 4x the lanes (designs) and 2x the samples per update (4,096),
     # minibatches of 512 as today (so as many gradient steps per sample)
     "big128": {**LR_CAP, "num_envs": 128, "num_steps": 32, "minibatches": 8},
+    # [ours] a policy that modulates a pump (Policies Modulating Trajectory Generators): ballu.BalluConfig.tg
+    "tg": {**LR_CAP, "tg": True},
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
