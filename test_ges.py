@@ -524,9 +524,9 @@ def test_ballu_energy_audit_finds_no_energy_created():
 
     ENERGY_TOL = 15 mJ over a whole 8 s episode is 10 % of one full knee stroke's work (0.0848 N m x 1.75 rad
     = 0.148 J) and of lifting the robot's net weight by 0.3 m at gcr 0.72; measured rises are <= 6 mJ
-    (`python ballu.py --audit 200`). The audit itself must be accurate: in free flight, away from every limit
-    and contact, the balance stays within 1 % of the work done (measured 0.3 %, halving with the time step:
-    the integrator's own error), both ways, so a missing or wrong work term shows."""
+    (`python -m experiments.ballu_capability --audit 200`). The audit itself must be accurate: in free flight,
+    away from every limit and contact, the balance stays within 1 % of the work done (measured 0.3 %, halving
+    with the time step: the integrator's own error), both ways, so a missing or wrong work term shows."""
     out = ballu_capability.stability_audit(episodes=16, steps=160, seed=4)
     assert out["energy_rise"].max() <= ENERGY_TOL, out["energy_rise"].max()
     cfg = replace(BalluConfig(), start_z=3.0, episode_steps=1000)
@@ -1092,7 +1092,8 @@ def test_ges_unit_roundtrip_and_uniform_sampling():
     theta = s.from_unit(x)
     np.testing.assert_allclose(s.to_unit(theta), x, atol=1e-12)
     s.validate(theta)  # round-off of the round trip is not an error
-    np.testing.assert_allclose(s.to_unit(s.lo), 0) and np.testing.assert_allclose(s.to_unit(s.hi), 1)
+    np.testing.assert_allclose(s.to_unit(s.lo), 0)
+    np.testing.assert_allclose(s.to_unit(s.hi), 1)
     u = s.sample_uniform(ges.rng_for(1), 20_000)
     assert np.all(u >= s.lo) and np.all(u <= s.hi)
     np.testing.assert_allclose(s.to_unit(u).mean(0), 0.5, atol=0.01)
@@ -1322,13 +1323,12 @@ def test_ges_synthetic_reaches_coverage_and_specialises(synthetic_run):
 
 
 def test_ges_coverage_growth_is_set_by_probes_per_seed_design():
-    """Why the quick preset's GES stopped at 17-42 %: refits average the n_init seeds with the won probes, so
-    4 probes against 50 seeds barely move a territory, while the facts' ratio F / n_init = 2 at a small F
-    reaches the stopping rule (ges.py --sweep: 11-17 rounds in D2 for n_init 8, F 16)."""
+    """Refits average the n_init seeds with the won probes, so coverage grows with F / n_init: 16 probes
+    against 8 seeds reach the stopping rule, 4 against 50 barely move a territory and hit the round cap."""
     small = ges.rounds_to_coverage(2, n_init=8, n_probe=16, seeds=(0,))[0]
     diluted = ges.rounds_to_coverage(2, n_init=50, n_probe=4, seeds=(0,))[0]
     assert small[1] >= 0.95 and small[0] < 20, small     # measured: 0.96 in 11 rounds
-    assert diluted == (20, pytest.approx(diluted[1])) and diluted[1] < 0.4, diluted   # measured: 0.22 at the cap
+    assert diluted[0] == 20 and diluted[1] < 0.4, diluted   # stopped by the round cap, far from coverage
 
 
 def test_ges_result_and_history_files(synthetic_run, tmp_path):
@@ -1342,7 +1342,8 @@ def test_ges_result_and_history_files(synthetic_run, tmp_path):
     np.testing.assert_allclose(res.sigma, res.sigma_unit * (res.space.hi - res.space.lo))
     assert all(os.path.isabs(c) and os.path.exists(c) for c in res.ckpt)
     loaded = ges.load_result(res.run_dir)
-    np.testing.assert_array_equal(loaded.sigma_unit, res.sigma_unit) and loaded.history == res.history
+    np.testing.assert_array_equal(loaded.sigma_unit, res.sigma_unit)
+    assert loaded.history == res.history
     png = ges.plot_territories(res.history, str(tmp_path / "t.png"), background=_land().region)
     assert os.path.getsize(png) > 20_000
     again = _run(res.run_dir)  # a finished run dir returns its result without training again
