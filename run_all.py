@@ -1,6 +1,8 @@
 """run_all.py -- one command that regenerates every table and figure of the GES paper with our code.
 
-    python run_all.py [--preset smoke|quick|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S] [--fresh]
+    python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S]
+                      [--fresh] [--executor process|dask [--scheduler ADDRESS]]
+    python run_all.py --plan | --rates [--preset P] [--workers N]    # the preset's hours / measure the rates
     python run_all.py --probe-agreement CKPT,CKPT,... [--task obstacle] [--designs 20] [--level-steps 16,8,...]
 
 Read top to bottom:
