@@ -47,13 +47,14 @@ import json
 import math
 import multiprocessing as mp
 import os
-import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import warnings
+import zipfile
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
@@ -64,6 +65,8 @@ import ballu
 import ges
 import ppo
 import tpe
+from runkit.logs import read_log
+from runkit.progress import Progress, Throttled, eta_s, run_eta, say
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS_FORMAT = 2   # bump when what a stage computes or stores changes: old result folders are then refused
@@ -574,54 +577,11 @@ def fmt_y(y) -> str:
     return "failed" if y is None else f"{y:.2f}"
 
 
-def say(msg: str) -> None:
-    print(f"[run_all {time.strftime('%H:%M:%S')}] {msg}", flush=True)
-
-
-LOADED_S = 5.0   # a unit done this soon after the stage's start (or the previous such unit) was loaded, not run
-
-
-class Progress:
-    """'label i/n elapsed eta' lines for the units of a long stage, at most one every `every` seconds.
-    `parallel` units run at once: when the first finishes, the other parallel - 1 are nearly done too, so the ETA
-    counts them as done (elapsed / done alone overstated a 2-worker stage's first ETA ~2x: 5,640 s for ~2,800).
-    The leading units a resumed stage loads (each done within LOADED_S) do not count: the overnight run's resumed
-    baselines said 'eta 102s' with 7 of 10 policies loaded and ~15 min of training left."""
-
-    def __init__(self, label: str, total: int, every: float = 10.0, parallel: int = 1):
-        self.label, self.total, self.every = label, max(total, 1), every
-        self.parallel = max(1, min(parallel, self.total))
-        self.t0, self.last = time.time(), 0.0
-        self.start, self.loaded = self.t0, 0   # the rate counts the units done after self.t0, the first loaded ones
-
-    def __call__(self, done: int, note: str = "", force: bool = False):
-        now = time.time()
-        if done == self.loaded + 1 and now - self.t0 < LOADED_S:
-            self.t0, self.loaded = now, done
-        if not force and now - self.last < self.every and done < self.total:
-            return
-        self.last = now
-        ran = done - self.loaded
-        eta = f"{(now - self.t0) / (ran + self.parallel - 1) * (self.total - done):6.0f}s" if ran else "     -"
-        say(f"  {self.label} {done}/{self.total}  elapsed {now - self.start:6.0f}s  eta {eta}  {note}")
-
-
-class Throttled:
-    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds."""
-
-    def __init__(self, prefix: str, every: float = 30.0):
-        self.prefix, self.every, self.last = prefix, every, 0.0
-
-    def __call__(self, text: str):
-        if time.time() - self.last >= self.every:
-            self.last = time.time()
-            say(f"    {self.prefix} {text}")
-
-
 _DASK_CLIENTS: dict = {}
 
 
 PROJECT_MODULES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")   # each imports only earlier ones
+PROJECT_PACKAGES = ("runkit",)   # imported by the modules, so uploaded (as zips) before them
 CONNECT_TIMEOUT_S = 5
 
 
@@ -643,6 +603,9 @@ def dask_client(scheduler: str | None, workers: int):
                 raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
                                f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
                                f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
+            for name in PROJECT_PACKAGES:
+                with tempfile.TemporaryDirectory() as tmp:
+                    client.upload_file(package_zip(name, tmp))
             for name in PROJECT_MODULES:
                 client.upload_file(os.path.join(HERE, name))
             _DASK_CLIENTS[key] = client
@@ -650,6 +613,16 @@ def dask_client(scheduler: str | None, workers: int):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
             _DASK_CLIENTS[key] = Client(cluster)
     return _DASK_CLIENTS[key]
+
+
+def package_zip(name: str, folder: str) -> str:
+    """This checkout's package `name` as folder/name.zip: Client.upload_file puts a zip on the workers' sys.path,
+    while it would import a lone .py of a package as a top-level module."""
+    path = os.path.join(folder, f"{name}.zip")
+    with zipfile.ZipFile(path, "w") as z:
+        for f in sorted(glob.glob(os.path.join(HERE, name, "*.py"))):
+            z.write(f, os.path.join(name, os.path.basename(f)))
+    return path
 
 
 def close_dask_clients() -> None:
@@ -711,21 +684,14 @@ def code_hash() -> str:
 def trim_log(csv_path: str, steps: int) -> None:
     """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
     resumed run's learning curve has no duplicated stretch."""
-    rows = redo_if_damaged(csv_path, read_log_rows, "learning-curve CSV", "its curve restarts here")
-    if rows is None:
+    if redo_if_damaged(csv_path, read_log, "learning-curve CSV", "its curve restarts here") is None:
         return
+    with open(csv_path, newline="") as fh:
+        rows = list(csv.reader(fh))
     tmp = f"{csv_path}.tmp{os.getpid()}"
     with open(tmp, "w", newline="") as fh:
         csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
     os.replace(tmp, csv_path)
-
-
-def read_log_rows(path: str) -> list:
-    """A learning-curve CSV of ppo.train: its header and rows, each row's numbers checked."""
-    with open(path) as fh:
-        rows = list(csv.reader(fh))
-    [[float(v) for v in r] for r in rows[1:]]
-    return rows
 
 
 def train_seconds(log_csv: str) -> float:
@@ -735,11 +701,9 @@ def train_seconds(log_csv: str) -> float:
     its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
     figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
     mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
-    rows = read_log_rows(log_csv)
-    col = rows[0].index("wall_s")
     total, prev = 0.0, 0.0
-    for r in rows[1:]:
-        wall = float(r[col])
+    for wall in read_log(log_csv)["wall_s"]:
+        wall = float(wall)
         if wall < prev:   # a resumed attempt's first update
             total += prev
         prev = wall
@@ -867,7 +831,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         last[0] = time.time()
         write_json(times_path, times)
         done = [v for k, v in times.items() if k != "0"]   # round 0 is the initialisation
-        eta = f"eta <= {np.mean(done) * (config.max_rounds - r):.0f}s" if done else "eta -"
+        eta = eta_s(sum(done), len(done), config.max_rounds - r)
+        eta = "eta -" if eta is None else f"eta <= {eta:.0f}s"
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
@@ -989,7 +954,7 @@ def tpe_search(spec: SearchSpec) -> dict:
 
     def after(study, trial):
         secs = [t.seconds or 0.0 for t in study.trials]
-        eta = np.mean(secs) * (n - len(secs))
+        eta = eta_s(sum(secs), len(secs), n - len(secs))
         say(f"  tpe {spec.name} trial {len(secs)}/{n} y={fmt_y(trial.y)} best={fmt_y(study.best and study.best.y)} "
             f"eta {eta:.0f}s")
         kill_hook(f"tpe:{spec.name}:trial{trial.index}")
@@ -1468,12 +1433,6 @@ def level_of(task: str, score: float) -> int:
     """Invert ballu.level_score: the curriculum level a score J stands for (the nearest one)."""
     levels = np.arange(ballu.MAX_LEVEL + 1)
     return int(levels[np.argmin(np.abs(ballu.level_score(task, levels) - score))])
-
-
-def read_log(path: str) -> dict:
-    with open(path) as fh:
-        rows = list(csv.DictReader(fh))
-    return {k: np.array([float(r[k]) for r in rows]) for k in ("steps", "episode_return", "mean_level")}
 
 
 def fig_curves(logs: list, path: str, title: str) -> str:
@@ -2185,23 +2144,6 @@ def run_stage(run: Run, name: str) -> float:
     write_json(path, {"stage": name, "result": result})
     say(f"stage {name}: done in {seconds:.1f}s")
     return seconds
-
-
-ETA_PRIOR_S = 60.0   # the pace starts at 1 as if this much had run to plan: a stage of seconds says little
-
-
-def run_eta(planned: dict, ran: dict, left: list, spent: dict | None = None) -> str:
-    """The whole run's ETA: plan()'s seconds of the stages left, scaled by the pace so far (the recorded seconds of
-    the stages finished in this call / their planned seconds, shrunk toward 1 by ETA_PRIOR_S), less the `spent`
-    seconds earlier attempts already put into a stage left (a resumed run). Skipped stages count for neither."""
-    spent = spent or {}
-    done_plan = sum(planned.get(s, 0.0) for s in ran)
-    pace = (sum(ran.values()) + ETA_PRIOR_S) / (done_plan + ETA_PRIOR_S)
-    eta = sum(max(0.0, pace * planned.get(s, 0.0) - spent.get(s, 0.0)) for s in left)
-    done = sum(spent.get(s, 0.0) for s in left)
-    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left"
-            + (f" ({done:.0f}s spent on them already)" if done else "") + ", " +
-            (f"--plan's time x {pace:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
 
 
 def main(argv=None) -> int:

@@ -29,6 +29,7 @@ import ges
 import ppo
 import run_all
 from experiments import ballu_capability, ppo_ballu, ppo_protocol
+from runkit import progress
 from ballu import BASELINE, BalluConfig, BalluEnv
 from tpe import TPE, Parzen, TPEConfig, bandwidths, build_parzen, n_good, optimize, recency_weights
 
@@ -2176,8 +2177,10 @@ def test_run_all_small_rules():
     for task in ("obstacle", "ramp"):
         for lv in range(ballu.MAX_LEVEL + 1):
             assert run_all.level_of(task, float(ballu.level_score(task, lv))) == lv
+    # derived seeds are pinned: another derivation (e.g. Python's salted hash()) would change every run's numbers
     seed = run_all.derive_seed
-    assert seed(0, "ppo", "a") == seed(0, "ppo", "a") != seed(1, "ppo", "a") and seed(0, "a") != seed(0, "b")
+    assert (seed(0, "ppo", "a"), seed(1, "ppo", "a"), seed(0, "a"), seed(0, "b")) == (
+        1460073160, 529933479, 450999037, 1911616833)
     assert run_all.wins(np.array([3, 2, 1, 1]), np.array([1, 2, 3, 1])) == {"win_pct": 25.0, "tie_pct": 50.0}
     assert run_all.cell(12.345, None) == "12.3 (-)" and run_all.cell(None, 36.9) == "- (36.9)"
     for p in run_all.PRESETS.values():   # GES budgets must fit the per-policy budget's meaning
@@ -2316,13 +2319,13 @@ def test_run_all_stage_time_survives_sigkill(tmp_path):
     assert abs(run_all.read_json(path)["baselines"] - times["baselines"] - 0.2) < 0.2
 
 
-def test_run_all_eta_of_a_resumed_run():
+def test_runkit_eta_of_a_resumed_run():
     """A resumed run's ETA counts what earlier attempts spent on a stage left: baselines planned 1000 s with 840 s
-    spent -> 160 s of it left, not 1000 (the overnight run's resume said its full 10.33 h); never below 0."""
+    spent -> 160 s of it left, not 1000; never below 0."""
     planned = {"baselines": 1000.0, "ges": 500.0}
-    assert run_all.run_eta(planned, {}, ["baselines", "ges"], {"baselines": 840.0}).startswith(
+    assert progress.run_eta(planned, {}, ["baselines", "ges"], {"baselines": 840.0}).startswith(
         "whole run: eta 660s (0.18 h) for 2 stage(s) left (840s spent on them already)")
-    assert run_all.run_eta(planned, {}, ["baselines"], {"baselines": 5000.0}).startswith("whole run: eta 0s")
+    assert progress.run_eta(planned, {}, ["baselines"], {"baselines": 5000.0}).startswith("whole run: eta 0s")
 
 
 def test_run_all_train_seconds_counts_every_attempt(tmp_path):
@@ -2341,7 +2344,7 @@ def test_run_all_train_seconds_counts_every_attempt(tmp_path):
             with open(log, "a") as fh:
                 fh.writelines(f"{2560 + 128 * i},{99.0 + i}" + ",0" * 9 + "\n" for i in (1, 2, 3))
             run_all.trim_log(log, 2560)
-    wall = [float(r[1]) for r in run_all.read_log_rows(log)[1:]]
+    wall = run_all.read_log(log)["wall_s"]
     assert len(wall) == 40 and wall[20] < wall[19]
     assert run_all.train_seconds(log) == pytest.approx(wall[19] + wall[39])
     assert wall[39] < run_all.train_seconds(log) <= sum(calls)
@@ -2356,35 +2359,50 @@ def test_run_all_train_seconds_counts_every_attempt(tmp_path):
     assert bo.trial_seconds(trial) == 5.0
 
 
-def test_run_all_progress_eta_counts_parallel_units(capsys):
-    """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900."""
-    import time
+def test_runkit_eta_against_schedules_with_known_answers(capsys):
+    """One formula for every ETA: on a schedule whose units take the same time, each user's ETA is exact.
+    Units of 10 s one at a time: 3 done in 30 s, 7 left -> 70 s. A PPO update of 64 steps in 1 s with 3,840
+    steps left -> 1.0 min. The whole run: a stage that ran 10x its plan of 10,000 s makes the next stage's
+    plan of 5,000 s take ~10x (the 60 s prior pulls the pace toward 1 by < 1 %)."""
+    assert progress.eta_s(30.0, 3, 7) == pytest.approx(70.0) and progress.eta_s(0.0, 0, 7) is None
+    lines = []
+    log = ppo.TrainLog(None, lines.append, "mlp", 64 * 61)
+    log.write(64, 64, time.time() - 1.0, 0.5, -1.098, float("nan"), 0.0, {"kl": 0.01, "value_loss": 1.0,
+                                                                         "entropy": 1.0}, 1e-4, 0.5)
+    assert re.search(r"eta\s+1\.0 min", lines[0]), lines[0]
+    assert "return        -  level" in lines[0] and "nan" not in lines[0]   # no episode has ended yet
+    text = progress.run_eta({"a": 10_000.0, "b": 5_000.0}, {"a": 100_000.0}, ["b"])
+    eta = float(re.match(r"whole run: eta (\d+)s", text).group(1))
+    assert 49_500 < eta < 50_000 and "x 9.9" in text, text
+
+
+def test_runkit_progress_counts_parallel_and_loaded_units(capsys):
+    """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900.
+    A resumed stage's units loaded at once (within LOADED_S) do not set the pace: 100 s for unit 3 -> 700 s."""
     for parallel, want in ((1, 900), (2, 450)):
-        p = run_all.Progress("jobs", 10, every=0, parallel=parallel)
+        p = progress.Progress("jobs", 10, every=0, parallel=parallel)
         p.t0 = time.time() - 100
         p(1)
         eta = float(re.search(r"eta\s+(\d+)s", capsys.readouterr().out).group(1))
         assert abs(eta - want) < 5, (parallel, eta)
-    p = run_all.Progress("jobs", 10, every=0)   # a resumed stage: units 1-2 loaded at once, then 100 s for unit 3
+    p = progress.Progress("jobs", 10, every=0)
     p(1), p(2)
     p.t0 -= 100
     p(3)
     etas = re.findall(r"eta\s+(\S+)", capsys.readouterr().out)
-    assert etas[:2] == ["-", "-"] and abs(float(etas[2].rstrip("s")) - 700) < 5, etas   # not 100 / 3 x 7
+    assert etas[:2] == ["-", "-"] and abs(float(etas[2].rstrip("s")) - 700) < 5, etas
 
 
-def test_run_all_rates_measure_what_plan_uses(tmp_path):
-    """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: a rate per job, and
-    SCORE_RATE is the J's played steps over its measured seconds (one episode of 400 steps: nothing replayed)."""
+def test_run_all_rates_time_each_kind_on_each_task(tmp_path):
+    """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: its jobs mix the
+    policy kinds and tasks as the stages do, each job trains and scores, and the text sets the measured rates
+    beside the constants --plan uses."""
     r = run_all.measure_rates(run_all.SMOKE, workers=1, steps=128, n_designs=1, out=str(tmp_path), jobs=2)
-    assert r["jobs"] == ["mlp obstacle", "moe ramp"]      # each kind, each task: the stages mix them
-    assert len(r["train_steps_per_s"]) == len(r["seconds_per_J"]) == 2
-    assert r["train_rate"] > 0 and r["seconds_per_J"][0] > 0
-    # one episode per J: every episode is played, so the played-step rate is 400 steps over the J's seconds
-    np.testing.assert_allclose(r["played_steps_per_s"], ballu.BalluConfig().episode_steps
-                               / np.array(r["seconds_per_J"]), rtol=0.05)
-    assert r["score_rate"] == pytest.approx(np.mean(r["played_steps_per_s"]))
-    assert "TRAIN_RATE" in run_all.rates_text(r)
+    assert r["jobs"] == ["mlp obstacle", "moe ramp"]
+    rates = np.array([r["train_steps_per_s"], r["seconds_per_J"], r["played_steps_per_s"]])
+    assert rates.shape == (3, 2) and np.all(np.isfinite(rates)) and np.all(rates > 0), rates
+    text = run_all.rates_text(r)
+    assert f"TRAIN_RATE {r['train_rate']:.0f}" in text and f"{run_all.TRAIN_RATE:.0f}" in text, text
 
 
 @pytest.mark.slow
@@ -2421,11 +2439,6 @@ def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
     assert hours(cost_trials=3, tpe_startup=3) == pytest.approx(2 * one)
     assert hours(cost_trials=3, tpe_startup=1) == pytest.approx(3 * one)
     assert hours(cost_trials=4, tpe_startup=10) == pytest.approx(2 * one)
-
-
-def test_run_all_probe_winners_tie_rule():
-    J = np.array([[3, 1, 2, 5], [3, 2, 1, 5], [1, 2, 0, 6]])   # rows: checkpoints, columns: designs
-    np.testing.assert_array_equal(run_all.probe_winners(J), [0, 1, 0, 2])   # ties -> lowest index, as GES
 
 
 def test_run_all_cost_claim_needs_a_saving_beyond_the_drift():
@@ -2518,20 +2531,10 @@ def test_run_all_damaged_files_are_redone_or_named(smoke_run, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_run_all_what_a_user_sees(smoke_run, capsys):
-    """Progress lines: no '+nan' return before any episode ended, J to two decimals, a whole-run ETA. The report:
+    """Progress lines: J to two decimals. The report:
     every table set apart by blank lines (Markdown would merge them), the head-to-head table once, Table III's
     min / max at the means' precision, and D3's leg length l defined."""
-    lines = []
-    log = ppo.TrainLog(None, lines.append, "mlp", 128)
-    log.write(64, 64, time.time() - 1.0, 0.5, -1.098, float("nan"), 0.0, {"kl": 0.01, "value_loss": 1.0,
-                                                                         "entropy": 1.0}, 1e-4, 0.5)
-    assert "return        -  level" in lines[0] and "nan" not in lines[0]
     assert (run_all.fmt_y(1.0999999999999999), run_all.fmt_y(None)) == ("1.10", "failed")
-    planned = {"ges": 100.0, "table2": 50.0, "figures": 10.0}
-    assert run_all.run_eta(planned, {}, ["ges", "table2"]).startswith("whole run: eta 150s")
-    pace = (200.0 + run_all.ETA_PRIOR_S) / (100.0 + run_all.ETA_PRIOR_S)   # ges took twice its plan
-    assert run_all.run_eta(planned, {"ges": 200.0}, ["table2", "figures"]).startswith(
-        f"whole run: eta {pace * 60:.0f}s") and f"x {pace:.2f}" in run_all.run_eta(planned, {"ges": 200.0}, ["x"])
     rep = read_text(os.path.join(smoke_run, "REPORT.md")).splitlines() + [""]   # the file ends after a table
     for i, line in enumerate(rep):
         if line.startswith("|") and not rep[i - 1].startswith("|"):
