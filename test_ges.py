@@ -545,7 +545,7 @@ def test_ballu_energy_audit_finds_no_energy_created():
     assert (np.abs(trace).max(axis=0) < 0.01 * mon.work).all(), np.abs(trace).max()   # ... and accounted for
 
 
-def test_ballu_capability_gaits_and_clearance_measure():
+def test_experiments_capability_gaits_and_clearance_measure():
     """The capability search's gait family holds the pump gaits exactly, and a standing robot's peak toe
     clearance is ~0: the spawn drop (feet 0.2-0.3 m up at t = 0) does not count as a jump."""
     acts = ballu_capability.gait_actions(ballu_capability.PUMP_GAITS, 60)
@@ -806,7 +806,7 @@ class SplitPointMass(JoinedPointMass):
 
 
 @pytest.mark.parametrize("text", ["10:5", "abc", "80", "-1", "3:", ":4"])
-def test_ppo_start_level_argument_errors_name_the_range(text):
+def test_experiments_start_level_argument_errors_name_the_range(text):
     import argparse
     with pytest.raises(argparse.ArgumentTypeError, match="0 <= LOW <= HIGH <= 74"):
         ppo_ballu.start_levels(text)
@@ -960,7 +960,7 @@ def test_ballu_score_of_a_design_does_not_depend_on_its_call_mates():
                                        (["--design", "1,2"], "--design '1,2' must be baseline, d2c, d2 or four"),
                                        (["--design", "0.45,0.45,nan,0.01"], "--design: gcr=nan is outside"),
                                        (["--design", "2,2,2,2"], "--design: l_f=2.0 is outside [0.05, 1.0]")])
-def test_ppo_command_line_rejects_out_of_range_numbers(argv, msg, tmp_path, capsys):
+def test_experiments_ppo_ballu_rejects_out_of_range_numbers(argv, msg, tmp_path, capsys):
     """experiments.ppo_ballu train: one line naming the option and its range, and nothing written."""
     with pytest.raises(SystemExit) as e:
         ppo_ballu.main(["train", str(tmp_path / "out"), *argv])
@@ -968,7 +968,7 @@ def test_ppo_command_line_rejects_out_of_range_numbers(argv, msg, tmp_path, caps
     assert not (tmp_path / "out").exists()
 
 
-def test_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
+def test_experiments_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     """The PPO protocol on a tiny budget: a row per setting and task with mean +- SE over seeds, the curve
     figure, a rerun that trains nothing (every milestone's result is kept), one copy of each checkpoint."""
     kw = dict(settings=("before",), tasks=("obstacle",), seeds=(0, 1), milestones=(128, 256), n_designs=2,
