@@ -3,7 +3,6 @@
     python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S]
                       [--fresh] [--executor process|dask [--scheduler ADDRESS]]
     python run_all.py --plan | --rates [--preset P] [--workers N]    # the preset's hours / measure the rates
-    python run_all.py --probe-agreement CKPT,CKPT,... [--task obstacle] [--designs 20] [--level-steps 16,8,...]
 
 Read top to bottom:
   1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
@@ -53,7 +52,6 @@ import sys
 import tempfile
 import threading
 import time
-import warnings
 import zipfile
 import zlib
 from concurrent.futures import ProcessPoolExecutor
@@ -65,8 +63,11 @@ import ballu
 import ges
 import ppo
 import tpe
+from runkit.clock import StageClock, stage_times
+from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.logs import read_log
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
+from runkit.stats import CI_LEVEL, N_BOOT, bootstrap_ci, paired_comparison, verdict, wins
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS_FORMAT = 2   # bump when what a stage computes or stores changes: old result folders are then refused
@@ -502,62 +503,11 @@ def rates_text(r: dict) -> str:
 # ----------------------------------------------------------------------------------------------------------
 # 3. Small tools
 # ----------------------------------------------------------------------------------------------------------
-class BadInput(Exception):
-    """A problem with the command line or the output folder: reported in one line, exit code 2."""
-
-
 def derive_seed(seed: int, *names) -> int:
     """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
     results do not depend on the order in which things run."""
     keys = [zlib.crc32(str(n).encode()) for n in names]
     return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
-
-
-def write_json(path: str, obj) -> None:
-    """Atomic write (tmp + replace): a killed run never leaves half a file."""
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=1)
-    os.replace(tmp, path)
-
-
-def read_json(path: str):
-    with open(path) as fh:
-        return json.load(fh)
-
-
-class Damaged(BadInput):
-    """A file an earlier attempt of this run wrote cannot be read back (truncated, garbage, another format)."""
-
-
-FRESH = "rerun with --fresh to start over"
-READ_ERRORS = (ValueError, KeyError, TypeError, AttributeError, IndexError, EOFError)   # JSON, UTF-8, torch, shape
-
-
-def read_back(path: str, load=read_json, what: str = "JSON file", fix: str = FRESH):
-    """load(path) of a file an earlier attempt wrote; if it is truncated, garbage or of another format, Damaged
-    names the file and what to do (a JSON or torch traceback says neither; torch's would even suggest
-    weights_only=False on a file we cannot trust)."""
-    try:
-        with warnings.catch_warnings():   # torch.load warns on foreign pickles: noise beside our one line
-            warnings.simplefilter("ignore")
-            return load(path)
-    except READ_ERRORS as e:
-        raise Damaged(f"{path} is damaged (not a readable {what}: {type(e).__name__}); {fix}") from None
-
-
-def redo_if_damaged(path: str, load=read_json, what: str = "JSON file", part: str = "redoing its part"):
-    """read_back of a file whose part the run can redo exactly (every number derives from --seed): a damaged one
-    is moved aside to <path>.damaged with a warning and None returned, as for a missing file."""
-    if not os.path.exists(path):
-        return None
-    try:
-        return read_back(path, load, what)
-    except Damaged as e:
-        os.replace(path, path + ".damaged")
-        say(f"warning: {str(e).split(';')[0]}: moved aside to {os.path.basename(path)}.damaged; {part}")
-        return None
 
 
 def ckpt_steps(path: str) -> int:
@@ -985,11 +935,6 @@ def run_searches(run: Run, specs: list) -> dict:
     return out
 
 
-def wins(a: np.ndarray, b: np.ndarray) -> dict:
-    """Head-to-head over the same test designs: % where a > b, % ties (scores are curriculum levels)."""
-    return {"win_pct": float(100 * np.mean(a > b)), "tie_pct": float(100 * np.mean(a == b))}
-
-
 def stage_table2(run: Run) -> dict:
     """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
     out = {"design": {}, "cells": {}}
@@ -1148,87 +1093,6 @@ def stage_cost(run: Run) -> dict:
             "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
             "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"],
             "unit": "core-s"}
-
-
-# --- the probe score against the paper's J (not a stage: a measurement, docs/probe_agreement) ----------------
-PROBE_BAR = {"same_winner_pct": 80.0, "spearman": 0.9}   # the bar for using a cheaper probe score in GES
-
-
-def probe_winners(J: np.ndarray) -> np.ndarray:
-    """Per design (column), the checkpoint (row) GES's probe argmax picks: the highest J, ties -> the lowest
-    index, as ges.ges_round does (facts). Agreement is measured on what decides the territories."""
-    return np.argmax(J, axis=0)
-
-
-def probe_agreement(ckpts: list, task: str = "obstacle", n_designs: int = 20, level_steps=BISECTION,
-                    episodes: int = ballu.SCORE_EPISODES, seed: int = 0, workers: int = 1, jitter: float = 0.0,
-                    progress=say) -> dict:
-    """Does a probe schedule rank like the paper's J? Scores `n_designs` uniform D2 designs with each of the K
-    checkpoints both ways, the full J (`episodes` unit steps) and the probe J (`level_steps`), and returns the
-    share of designs where both pick the same winner (probe_winners' tie rule; the share of designs with a tie
-    is returned too, since ties inflate agreement), Spearman's rank correlation over all K x n (design,
-    checkpoint) pairs (NaN if one way scored every pair alike) and each way's wall time.
-
-    `jitter` > 0 adds a third way, the ceiling of the bar [ours]: the full J itself on designs moved by
-    +-jitter of each axis' range (random signs). No probe score can agree with J better than J agrees with
-    itself a hair's breadth away, so its same-winner share and rank correlation say whether the bar can be met
-    on these checkpoints at all."""
-    from scipy.stats import spearmanr
-    space = ballu.d2(task)   # Table I bounds
-    rng = np.random.default_rng(derive_seed(seed, "probe-agreement", task))
-    theta = space.sample_uniform(rng, n_designs)
-    ways = {"full": (theta, {"episodes": episodes}), "probe": (theta, {"level_steps": tuple(level_steps)})}
-    if jitter > 0:
-        span = np.asarray(space.highs) - np.asarray(space.lows)
-        moved = np.clip(theta + jitter * span * rng.choice([-1.0, 1.0], theta.shape), space.lows, space.highs)
-        ways["jitter"] = (moved, {"episodes": episodes})
-    J = {w: np.zeros((len(ckpts), n_designs)) for w in ways}
-    seconds = {w: 0.0 for w in ways}
-    for k, ckpt in enumerate(ckpts):
-        policy = read_back(ckpt, ppo.load_policy, "ppo.py checkpoint", "give --probe-agreement checkpoints that "
-                           "ppo.py wrote")
-        for w, (th, kw) in ways.items():
-            t0 = time.time()
-            J[w][k] = ballu.score(policy, space.full(th), task, workers=max(1, min(workers, n_designs)), **kw)
-            seconds[w] += time.time() - t0
-            progress(f"probe agreement: checkpoint {k + 1}/{len(ckpts)} {w} J done ({seconds[w]:.0f} s so far)")
-    win = {w: probe_winners(J[w]) for w in ways}
-
-    def agreement(w):   # (same winner %, Spearman) of way w against the full J
-        constant = np.ptp(J["full"]) == 0 or np.ptp(J[w]) == 0
-        rho = float("nan") if constant else float(spearmanr(J["full"].ravel(), J[w].ravel())[0])
-        return float(100 * np.mean(win["full"] == win[w])), rho
-
-    out = {"task": task, "designs": space.full(theta).tolist(), "ckpts": list(ckpts), "episodes": episodes,
-           "level_steps": list(level_steps), "J_full": J["full"].tolist(), "J_probe": J["probe"].tolist(),
-           "tie_pct": {w: float(100 * np.mean((J[w] == J[w].max(axis=0)).sum(axis=0) > 1)) for w in ways},
-           "seconds": seconds}
-    out["same_winner_pct"], out["spearman"] = agreement("probe")
-    if jitter > 0:
-        out.update(jitter=jitter, J_jitter=J["jitter"].tolist(), ceiling=dict(zip(("same_winner_pct", "spearman"),
-                                                                               agreement("jitter"))))
-    return out
-
-
-def probe_agreement_text(r: dict) -> str:
-    """The measurement in a few lines, against PROBE_BAR."""
-    K, n = len(r["ckpts"]), len(r["designs"])
-    ok = r["same_winner_pct"] >= PROBE_BAR["same_winner_pct"] and r["spearman"] >= PROBE_BAR["spearman"]
-    full_s, probe_s = r["seconds"]["full"], r["seconds"]["probe"]
-    return "\n".join([
-        f"probe agreement, {r['task']}: {n} uniform D2 designs x {K} checkpoints; full J = {r['episodes']} unit "
-        f"steps, probe J = level steps {r['level_steps']}",
-        f"  same winner (highest J, ties -> lowest index as GES's probe argmax): {r['same_winner_pct']:.1f} % "
-        f"(bar >= {PROBE_BAR['same_winner_pct']:.0f} %); designs with a tie: full {r['tie_pct']['full']:.1f} %, "
-        f"probe {r['tie_pct']['probe']:.1f} %",
-        f"  Spearman rank correlation over all {K * n} (design, checkpoint) pairs: "
-        + (f"{r['spearman']:.3f}" if np.isfinite(r["spearman"]) else "undefined (one way scored every pair alike)")
-        + f" (bar >= {PROBE_BAR['spearman']})",
-        f"  wall time: full J {full_s:.0f} s, probe J {probe_s:.0f} s ({full_s / max(probe_s, 1e-9):.1f}x faster)",
-        f"  the bar (PROBE_BAR): {'met' if ok else 'NOT met'}"]
-        + ([f"  ceiling: the full J on designs moved by +-{100 * r['jitter']:g} % of each range agrees with the "
-            f"full J on {r['ceiling']['same_winner_pct']:.1f} % of winners, Spearman {r['ceiling']['spearman']:.3f}"]
-           if "ceiling" in r else []))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1549,42 +1413,6 @@ PAPER_KSENS_PEAK_K = 3
 # Sec. V-D "Computational Cost": ~100 h per-design BO vs ~63 h GES on the 3D space, a 37 % reduction;
 # Stage 1 for K = 6 took 48 h.
 PAPER_COST = {"bo_h": 100.0, "ges_h": 63.0, "reduction_pct": 37.0, "stage1_h": 48.0}
-
-
-# --- uncertainty (beyond the paper, which gives none): bootstrap over test designs, paired comparisons ---
-N_BOOT = 10_000          # [ours] bootstrap resamples; the CI's Monte Carlo error is ~0.01 of its width
-CI_LEVEL = 0.95
-
-
-def bootstrap_ci(x, seed: int = 0, level: float = CI_LEVEL) -> tuple:
-    """Percentile bootstrap CI of the mean over test designs (each design is one draw of the design space)."""
-    x = np.asarray(x, dtype=float)
-    idx = np.random.default_rng(seed).integers(0, len(x), (N_BOOT, len(x)))
-    means = x[idx].mean(axis=1)
-    return float(np.quantile(means, (1 - level) / 2)), float(np.quantile(means, (1 + level) / 2))
-
-
-def paired_comparison(a, b, seed: int = 0) -> dict:
-    """a vs b on the same test designs: mean difference with its paired-bootstrap CI, the Wilcoxon signed-rank
-    p-value (two-sided; 1.0 when every pair ties), and the win rate of a (ties apart) with its bootstrap CI."""
-    from scipy.stats import wilcoxon
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    d = a - b
-    idx = np.random.default_rng(seed).integers(0, len(d), (N_BOOT, len(d)))
-    q = ((1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2)
-    diff_lo, diff_hi = np.quantile(d[idx].mean(axis=1), q)
-    win_lo, win_hi = np.quantile(100 * (d[idx] > 0).mean(axis=1), q)
-    p = float(wilcoxon(a, b).pvalue) if np.any(d != 0) else 1.0
-    return {"diff": float(d.mean()), "diff_lo": float(diff_lo), "diff_hi": float(diff_hi), "p": p,
-            "win_lo": float(win_lo), "win_hi": float(win_hi), **wins(a, b)}
-
-
-def verdict(cmp: dict, alpha: float = 0.05) -> str:
-    """A claim 'a > b' from a paired comparison: supported (a higher, p < alpha), not supported (a lower,
-    p < alpha) or not resolved."""
-    if cmp["p"] < alpha:
-        return "supported" if cmp["diff"] > 0 else "not supported"
-    return "not resolved"
 
 
 def mean_ci(x, seed: int = 0, fmt: str = "{:.1f}") -> str:
@@ -1941,42 +1769,7 @@ def parse(argv):
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="Dask scheduler, e.g. tcp://HOST:8786 (default with --executor dask: a local cluster "
                          "of --workers processes)")
-    ap.add_argument("--probe-agreement", default=None, metavar="CKPT,CKPT,...",
-                    help="instead of stages: score --designs uniform D2 designs with each checkpoint by the full J "
-                         "and by the probe schedule; print the same-winner share, rank correlation and wall times")
-    ap.add_argument("--task", default="obstacle", help="with --probe-agreement: obstacle or ramp")
-    ap.add_argument("--designs", type=int, default=20, help="with --probe-agreement: designs (default 20)")
-    ap.add_argument("--level-steps", default=",".join(map(str, BISECTION)),
-                    help=f"with --probe-agreement: the probe schedule (default {','.join(map(str, BISECTION))})")
-    ap.add_argument("--episodes", type=int, default=ballu.SCORE_EPISODES,
-                    help=f"with --probe-agreement: episodes of the full J (default {ballu.SCORE_EPISODES})")
-    ap.add_argument("--jitter", type=float, default=0.0,
-                    help="with --probe-agreement: also score the full J on designs moved by this share of each "
-                         "range (e.g. 0.001), the ceiling any probe score can reach")
     return ap.parse_args(argv)
-
-
-def check_probe_args(args) -> dict:
-    """--probe-agreement's arguments as probe_agreement's keywords; BadInput names what is wrong."""
-    ckpts = [c for c in args.probe_agreement.split(",") if c]
-    missing = [c for c in ckpts if not os.path.isfile(c)]
-    if len(ckpts) < 2 or missing:
-        raise BadInput(f"--probe-agreement needs >= 2 existing checkpoints, comma-separated; got {len(ckpts)}"
-                       + (f", missing: {missing}" if missing else ""))
-    if args.task not in TASKS:
-        raise BadInput(f"--task {args.task} must be one of {TASKS}")
-    if min(args.designs, args.workers, args.episodes) < 1 or args.seed < 0:
-        raise BadInput(f"--designs {args.designs}, --workers {args.workers}, --episodes {args.episodes} must be "
-                       f">= 1 and --seed {args.seed} >= 0")
-    try:
-        steps = tuple(ballu.check_level_steps(tuple(int(s) for s in args.level_steps.split(",")), None).tolist())
-    except ValueError:
-        raise BadInput(f"--level-steps {args.level_steps} must be comma-separated integers in "
-                       f"[1, {ballu.MAX_LEVEL}]") from None
-    if not 0 <= args.jitter < 1:
-        raise BadInput(f"--jitter {args.jitter} must lie in [0, 1) (a share of each design axis' range)")
-    return {"ckpts": ckpts, "task": args.task, "n_designs": args.designs, "level_steps": steps,
-            "episodes": args.episodes, "seed": args.seed, "workers": args.workers, "jitter": args.jitter}
 
 
 def check_args(args) -> tuple:
@@ -1987,11 +1780,6 @@ def check_args(args) -> tuple:
         raise BadInput(f"unknown stage(s) {bad} in --only; known: {','.join(STAGES)}")
     if not only:
         raise BadInput(f"--only {args.only!r} names no stage; known: {','.join(STAGES)}")
-    default = parse([])
-    alone = [f"--{k.replace('_', '-')}" for k in ("task", "designs", "level_steps", "episodes", "jitter")
-             if getattr(args, k) != getattr(default, k)]
-    if alone:
-        raise BadInput(f"{', '.join(alone)} only apply with --probe-agreement")
     if args.seed < 0:
         raise BadInput(f"--seed={args.seed} must be >= 0")
     if args.scheduler and args.executor != "dask":
@@ -2090,43 +1878,6 @@ def open_output(out: str, manifest: dict, reuse: bool) -> dict:
     return manifest
 
 
-def stage_times(path: str) -> dict:
-    """stage_seconds.json: every attempt's wall seconds per stage (a damaged file is moved aside, counting anew)."""
-    return redo_if_damaged(path, part="counting the stage times from now on") or {}
-
-
-STAGE_CLOCK_S = 60.0   # a stage killed by SIGKILL loses at most this much of its recorded wall time
-
-
-class StageClock:
-    """Adds a stage's wall time to stage_seconds.json every `every` seconds and once more at close(), so an
-    attempt killed by SIGKILL (a session's end), which runs no `finally`, still counts: the overnight run's first
-    attempt, 84 min of its baselines stage, was missing from the file. [ours] A daemon thread ticks."""
-
-    def __init__(self, path: str, name: str, every: float = STAGE_CLOCK_S):
-        self.path, self.name, self.t0 = path, name, time.time()
-        self.base = stage_times(path).get(name, 0.0)
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._tick, args=(every,), daemon=True, name=f"clock_{name}")
-        self.thread.start()
-
-    def _write(self) -> None:
-        times = stage_times(self.path)
-        times[self.name] = self.base + time.time() - self.t0
-        write_json(self.path, times)
-
-    def _tick(self, every: float) -> None:
-        while not self.stop.wait(every):
-            self._write()
-
-    def close(self) -> float:
-        """Stop ticking, write the final time; returns this attempt's seconds."""
-        self.stop.set()
-        self.thread.join()
-        self._write()
-        return time.time() - self.t0
-
-
 def run_stage(run: Run, name: str) -> float:
     """Run one stage unless its result exists; record its wall time (summed over attempts); returns the seconds
     it ran (0 if skipped)."""
@@ -2158,9 +1909,6 @@ def main(argv=None) -> int:
             return 0
         if args.rates:
             print(rates_text(measure_rates(preset, args.workers)), flush=True)
-            return 0
-        if args.probe_agreement is not None:
-            print(probe_agreement_text(probe_agreement(**check_probe_args(args))), flush=True)
             return 0
         stages = check_args(args)
         manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,

@@ -28,8 +28,10 @@ import ballu
 import ges
 import ppo
 import run_all
-from experiments import ballu_capability, ppo_ballu, ppo_protocol
+from experiments import ballu_capability, ppo_ballu, ppo_protocol, probe_agreement
 from runkit import progress
+from runkit import stats as rstats
+from runkit.clock import StageClock
 from ballu import BASELINE, BalluConfig, BalluEnv
 from tpe import TPE, Parzen, TPEConfig, bandwidths, build_parzen, n_good, optimize, recency_weights
 
@@ -2051,24 +2053,37 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
                                   ppo.load_policy(res.ckpt[ks[pick[0]]])(obs))
 
 
-def test_run_all_uncertainty_against_independent_references():
-    """The bootstrap CI of a mean matches the normal-theory CI for a large sample; the paired comparison's
-    p-value is scipy's Wilcoxon; a planted improvement is 'supported', its mirror 'not supported', noise and
-    all-ties 'not resolved'."""
+def test_runkit_uncertainty_against_independent_references():
+    """The bootstrap CI of a mean matches the normal-theory CI for a large sample and scipy.stats.bootstrap's
+    percentile CI (the same resamples) to round-off; the paired comparison's p-value is scipy's Wilcoxon; a
+    planted improvement is 'supported', its mirror 'not supported', noise and all-ties 'not resolved'."""
     rng = np.random.default_rng(0)
     x = rng.normal(10, 3, 400)
     half = 1.96 * x.std(ddof=1) / math.sqrt(len(x))
-    np.testing.assert_allclose(run_all.bootstrap_ci(x), (x.mean() - half, x.mean() + half), atol=0.05 * half)
+    np.testing.assert_allclose(rstats.bootstrap_ci(x), (x.mean() - half, x.mean() + half), atol=0.05 * half)
+    ref = stats.bootstrap((x,), np.mean, n_resamples=rstats.N_BOOT, method="percentile",
+                          rng=np.random.default_rng(0)).confidence_interval
+    np.testing.assert_allclose(rstats.bootstrap_ci(x), (ref.low, ref.high), rtol=1e-12)
     a = x + rng.normal(0.5, 1.0, len(x))
-    cmp = run_all.paired_comparison(a, x)
+    cmp = rstats.paired_comparison(a, x)
     assert cmp["p"] == pytest.approx(stats.wilcoxon(a, x).pvalue) and cmp["diff_lo"] < 0.5 < cmp["diff_hi"]
     assert cmp["win_pct"] == pytest.approx(100 * np.mean(a > x)) and cmp["win_lo"] < cmp["win_pct"] < cmp["win_hi"]
-    assert run_all.verdict(cmp) == "supported" and run_all.verdict(run_all.paired_comparison(x, a)) == "not supported"
-    assert run_all.verdict(run_all.paired_comparison(x + rng.normal(0, 1, len(x)), x)) == "not resolved"
-    same = run_all.paired_comparison(x, x)
-    assert same["p"] == 1.0 and same["tie_pct"] == 100 and run_all.verdict(same) == "not resolved"
+    assert rstats.verdict(cmp) == "supported" and rstats.verdict(rstats.paired_comparison(x, a)) == "not supported"
+    assert rstats.verdict(rstats.paired_comparison(x + rng.normal(0, 1, len(x)), x)) == "not resolved"
+    same = rstats.paired_comparison(x, x)
+    assert same["p"] == 1.0 and same["tie_pct"] == 100 and rstats.verdict(same) == "not resolved"
+    assert rstats.wins(np.array([3, 2, 1, 1]), np.array([1, 2, 3, 1])) == {"win_pct": 25.0, "tie_pct": 50.0}
+
+
+def test_run_all_best_of_needs_every_comparison():
+    """A claim 'X is best' is supported when X beats every other, not supported when some other beats X."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(10, 3, 400)
+    a = x + rng.normal(0.5, 1.0, len(x))
     table = {"a": {"scores": a.tolist()}, "b": {"scores": x.tolist()}}
     assert run_all.best_of(table, "a") == "supported" and run_all.best_of(table, "b") == "not supported"
+    table["c"] = {"scores": (a + rng.normal(0, 1, len(x))).tolist()}   # a rival a does not beat
+    assert run_all.best_of(table, "a") == "not resolved" and run_all.best_of(table, "d") == "not measured"
 
 
 def raw_numbers(out: str) -> dict:
@@ -2181,7 +2196,6 @@ def test_run_all_small_rules():
     seed = run_all.derive_seed
     assert (seed(0, "ppo", "a"), seed(1, "ppo", "a"), seed(0, "a"), seed(0, "b")) == (
         1460073160, 529933479, 450999037, 1911616833)
-    assert run_all.wins(np.array([3, 2, 1, 1]), np.array([1, 2, 3, 1])) == {"win_pct": 25.0, "tie_pct": 50.0}
     assert run_all.cell(12.345, None) == "12.3 (-)" and run_all.cell(None, 36.9) == "- (36.9)"
     for p in run_all.PRESETS.values():   # GES budgets must fit the per-policy budget's meaning
         assert p.ges_round_steps * p.ges_max_rounds <= p.ppo_steps * 1.01 and p.cost_trials <= p.tpe_trials
@@ -2226,23 +2240,23 @@ def test_run_all_probe_schedule_scores_ges_probes_only(monkeypatch, tmp_path):
 
 
 @pytest.mark.slow
-def test_run_all_probe_agreement_runs_on_a_tiny_size(smoke_run, capsys):
-    """--probe-agreement (the probe-agreement measurement) on 2 designs x 2 smoke policies, 2 episodes against a
-    one-episode schedule: it prints the same-winner share, rank correlation and both wall times, and with
-    --jitter the ceiling (J against itself on moved designs). Bad input exits 2 naming the argument."""
+def test_experiments_probe_agreement_runs_on_a_tiny_size(smoke_run, capsys):
+    """The probe-agreement measurement on 2 designs x 2 smoke policies, 2 episodes against a one-episode
+    schedule: it prints the same-winner share, rank correlation and both wall times, and with --jitter the
+    ceiling (J against itself on moved designs). Bad input exits 2 naming the argument."""
     ckpts = ",".join(os.path.join(smoke_run, "policies", f"{m}-obstacle-d2", "policy.pt") for m in ("mlp", "moe"))
-    assert run_all.main(["--probe-agreement", ckpts, "--designs", "2", "--episodes", "2", "--level-steps", "2",
-                         "--workers", "1", "--jitter", "0.01"]) == 0
+    assert probe_agreement.main([ckpts, "--designs", "2", "--episodes", "2", "--level-steps", "2",
+                                 "--workers", "1", "--jitter", "0.01"]) == 0
     out = capsys.readouterr().out
     for text in ("2 uniform D2 designs x 2 checkpoints", "same winner", "Spearman", "wall time: full J",
                  "the bar (PROBE_BAR)", "ceiling: the full J on designs moved by +-1 %"):
         assert text in out, text
-    for argv, msg in ((["--probe-agreement", ckpts.split(",")[0]], ">= 2 existing checkpoints"),
-                      (["--probe-agreement", ckpts, "--level-steps", "0,2"], "--level-steps 0,2 must be"),
-                      (["--probe-agreement", ckpts, "--task", "stairs"], "--task stairs must be one of"),
-                      (["--probe-agreement", ckpts, "--designs", "0"], "--designs 0"),
-                      (["--probe-agreement", ckpts, "--jitter", "1.5"], "--jitter 1.5 must lie in [0, 1)")):
-        assert run_all.main(argv) == 2
+    for argv, msg in (([ckpts.split(",")[0]], ">= 2 existing checkpoints"),
+                      ([ckpts, "--level-steps", "0,2"], "--level-steps 0,2 must be"),
+                      ([ckpts, "--task", "stairs"], "--task stairs must be one of"),
+                      ([ckpts, "--designs", "0"], "--designs 0"),
+                      ([ckpts, "--jitter", "1.5"], "--jitter 1.5 must lie in [0, 1)")):
+        assert probe_agreement.main(argv) == 2
         assert msg in capsys.readouterr().err, msg
 
 
@@ -2288,15 +2302,15 @@ def test_run_all_pool_workers_exit_when_the_run_is_killed(tmp_path):
 
 _CLOCKED_STAGE = """
 import sys, time
-import run_all
-clock = run_all.StageClock(sys.argv[1], "baselines", every=0.05)
+from runkit.clock import StageClock
+clock = StageClock(sys.argv[1], "baselines", every=0.05)
 print("ticking", flush=True)
 time.sleep(60)
 """
 
 
-def test_run_all_stage_time_survives_sigkill(tmp_path):
-    """A stage's wall time reaches stage_seconds.json while it runs (run_all.StageClock), so an attempt killed by
+def test_runkit_stage_time_survives_sigkill(tmp_path):
+    """A stage's wall time reaches stage_seconds.json while it runs (runkit.clock.StageClock), so an attempt killed by
     SIGKILL, which runs no `finally`, still counts, added to the earlier attempts' time; close() writes the rest."""
     import signal
     path = str(tmp_path / "stage_seconds.json")
@@ -2313,7 +2327,7 @@ def test_run_all_stage_time_survives_sigkill(tmp_path):
     lived = time.time() - t0
     times = run_all.read_json(path)
     assert times["table1"] == 1.0 and 100.0 + lived - 0.5 <= times["baselines"] <= 100.0 + lived + 0.5, (lived, times)
-    clock = run_all.StageClock(path, "baselines", every=60)   # the next attempt starts from what the killed one left
+    clock = StageClock(path, "baselines", every=60)   # the next attempt starts from what the killed one left
     time.sleep(0.2)
     assert 0.2 <= clock.close() < 1.0
     assert abs(run_all.read_json(path)["baselines"] - times["baselines"] - 0.2) < 0.2
