@@ -4,13 +4,12 @@
                       [--fresh] [--executor process|dask [--scheduler ADDRESS]]
     python run_all.py --plan | --rates [--preset P] [--workers N]    # the preset's hours / measure the rates
 
-Read top to bottom:
+Read top to bottom, the paper's experiments section in order:
   1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
      design sampler; GES's train and score callables (ges.py's contract); J(theta) of every method, GES's
      through the density router (eq. 10, ges.RoutedEvaluator)
-  2. presets: every budget of a run in one dataclass, with the timing arithmetic next to each preset
-  3. small tools: derived seeds, atomic JSON, progress lines with ETA, a kill hook for the resume test
-  4. stages (each a function, each name usable with --only):
+  2. presets: every budget of a run in one dataclass
+  3. stages (each a function, each name usable with --only):
        table1     the design space and the baseline design                       (paper Table I)
        baselines  PPO policies: baseline design, e2e MLP and e2e MoE per task/space (Sec. V-A)
        ges        GES stage 1 for obstacle/ramp x D2/D3 (K = 3 / 6)                 (Alg. 1)
@@ -19,10 +18,13 @@ Read top to bottom:
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve
-  5. figures
-  6. REPORT.md: the paper's numbers (quoted from the tex) and every table with each cell as "ours (paper)",
+  4. figures
+  5. REPORT.md: the paper's numbers (quoted from the tex) and every table with each cell as "ours (paper)",
      the budgets, seed, commit, wall times
+  6. machinery: derived seeds, Dask, a kill hook for the resume test, --plan's arithmetic and --rates
   7. the command line
+Machinery that knows nothing of BALLU or GES (progress lines and the one ETA formula, atomic JSON and damaged
+files, the stage clock, the report's statistics) lives in runkit/.
 
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
 
@@ -302,9 +304,8 @@ class Preset:
     peak_episodes: int | None = None
 
 
-# A bisection over curriculum levels for GES's probe scores (ours; ballu.score's `level_steps`): ~3x cheaper than
-# the 20-episode J. In no preset: on trained e2e MLPs it picked J's winner on 55 % of designs (bar 80 %), and J
-# itself on designs moved by 0.1 % agrees with J no better (docs/probe_agreement). Kept for a better schedule.
+# [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
+# than the 20-episode J; in no preset: it picks J's winner too rarely (docs/probe_agreement).
 BISECTION = (16, 8, 4, 2, 1, 1, 1)
 
 
@@ -319,22 +320,11 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
                probe_level_steps=(2,), peak_episodes=2)
 
-# quick: every table and figure in <= 2 h on a 2-core machine, planned on the measured rates below with a 15 %
-# margin (`python run_all.py --preset quick --plan`: 1.79 h with GES at its round cap; measured 1.83 h).
-# What it buys (hours on 2 cores):
-#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 380k steps, what the
-#     margin allows (the e2e MLP's obstacle level climbs until ~0.5 M steps in the protocol, docs/ppo_protocol);
-#   - GES 0.32 + Table III 0.21 + Fig. 7 0.04: specialists warm-start from their cell's e2e MLP (ges_warm_start;
-#     ours: from random init they would get ~30k steps each), then train / probe / refit until 95 % coverage or
-#     3 rounds (10k steps each, F = 5 probes, each a 20-episode J). Probes are most of GES's cost, so Fig. 7
-#     runs K = 1 and 3 (GES's own run), not the paper's 1-6 (overnight and paper do);
-#   - Table II 0.36: 20 test designs per cell and method (paired CI of GES - e2e MLP ~+-3 cm at the last quick
-#     run's sd of 6-7 cm), TPE design searches of 6 trials (3 random), each search's peak scored again by a
-#     30-episode J; cost 0.24: 3 per-design BO trials (a per-trial mean and spread for the break-even count).
-# ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
-# won, so growth per round is set by F / n_init (`python ges.py --sweep`, planted landscape): n_init 2 grows
-# 12 % -> 16-25 % (D2) in 3 rounds with F = 6, n_init 50 stays flat. Reaching 95 % takes ~100 probe J per
-# specialist in D2 and ~200 in D3: hours of probes, so quick reports each run's coverage at its cap.
+# quick: every table and figure in <= 2 h on 2 cores (`--plan`, with a 15 % margin): 380k PPO steps per policy;
+# specialists warm-start from their cell's e2e MLP (ges_warm_start, ours) for <= 3 rounds of 10k steps with F = 5;
+# Fig. 7 at K = 1 and 3 only (probes are most of GES's cost); 20 test designs; TPE searches of 6 trials.
+# ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init (`python ges.py --sweep`). What each
+# stage buys, in hours and centimetres: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, K_d2=3, K_d3=6, ges_max_rounds=3,
                ges_target_coverage=0.95, ges_probes=5, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
@@ -342,16 +332,9 @@ QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, 
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=3, ges_warm_start=True,
                peak_episodes=30)
 
-# overnight: one night on 2 cores (`--plan`: 10.3 h with every GES run at its round cap, 11.9 h with a 15 % margin).
-#   - baselines 1.58: 1 M PPO steps per policy, the protocol's milestone (docs/ppo_protocol/new_robot: its e2e MLP
-#     scores 17.8 cm / 28.6 deg there, and 2 M add nothing on the obstacle);
-#   - GES 2.65 + Table III 1.46 + Fig. 7 (K = 1-6) 2.87: 100k steps per specialist and round, F = 10 probes, at
-#     most 6 rounds (facts: 20). The quick run's D2 reached 95 % in 2-3 rounds of F = 5 (D3: 71-78 % after 3), so
-#     a D2 specialist trains ~200-300k steps: at 30k each the specialists scored 2.0 cm below the e2e MLP they
-#     start from, at 300k -0.1 +- 0.7 cm (docs/ges_lanes, 3 seeds); a run that stops at the cap reports its coverage;
-#   - Table II 1.14: 50 test designs (paired CI of GES - e2e MLP ~+-2 cm at the quick run's sd of the paired
-#     differences, 6-7 cm), the paper's 40 TPE trials (10 random first; each trial is one J, cheap), peaks
-#     rescored by a 30-episode J; cost 0.64: 4 per-design BO trials of 1 M steps.
+# overnight: one night on 2 cores (`--plan`: 10.3 h with every GES run at its round cap): 1 M PPO steps per
+# policy (the PPO protocol's milestone); GES rounds of 100k steps with F = 10, to 95 % coverage or 6 rounds (facts:
+# 20); Fig. 7 at K = 1-6; 50 test designs; the paper's 40 TPE trials. The numbers behind each: docs/presets.md.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
                    score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=6,
                    ges_target_coverage=0.95, ges_probes=10, ges_probe_pool=2000, ges_init_designs=2,
@@ -371,297 +354,8 @@ PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_env
 PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
 
-# --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
-# Per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores busy),
-# measured by `python run_all.py --rates` (2026-11-26, new robot, AMD EPYC, alone): PPO training at the quick
-# preset's batch, an e2e MLP and MoE on each task (978 and 878 steps/s in two runs; the lower one here), and the
-# score steps J actually played (844/s: MLP 942-1027, MoE 695-711). Rates measured with one job on both cores made
-# the plan 1.4x too short, and timing the obstacle alone made the baselines 36 % longer than planned.
-TRAIN_RATE, SCORE_RATE = 880.0, 840.0
-# Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
-# 0.52-0.80 (mean 0.66) for four e2e MLPs at 1 M steps on 12 held-out designs (obstacle, from level 28), previous
-# robot; 0.48-0.68 (mean 0.57) for the new robot's three lr_cap MLPs at 1 M. The larger one is kept (the plan is an
-# upper bound). The step counts below stay those of every episode.
-SCORE_PLAYED = 0.66
-
-
-def played_share(preset: Preset) -> float:
-    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
-    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
-
-
-# Fixed costs (smoke's wall time is mostly these): a process pool's start, its `workers` spawned processes importing
-# torch and pybullet (~2 s on idle cores, the comment in train_policy; 7-8 s measured with a PPO training on both
-# cores), once per pool a stage starts; and the figures stage (9.5 s in a smoke run, 40 s in the quick run).
-POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
-POOL_START_S, FIGURES_S = 2.0, 40.0
-
-
-def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
-    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
-    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing
-    (but per-design BO: its random startup trials `workers` at a time, the TPE trials after them one at a time),
-    scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
-    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
-    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
-    figures stage (FIGURES_S)."""
-    p, episode = preset, ballu.BalluConfig().episode_steps
-    J = p.score_episodes * episode                                            # one design's score J
-    peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
-    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
-
-    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
-        return np.array([sum(K * p.ges_round_steps for K in Ks), 0, sum(K * p.ges_probes * probe_J for K in Ks)]
-                        ) * p.ges_max_rounds
-
-    cells = len(TASKS) * len(SPACES)
-    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
-    work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
-            "ges": ges([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
-            "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J
-                                + cells * 3 * peak_J, 0]),
-            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
-            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
-            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
-    played = played_share(p)
-    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
-    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
-    startup = min(p.cost_trials, p.tpe_startup)
-    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
-    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / width.get(stage, workers)
-                              + fixed[stage]) / 3600} for stage, w in work.items()}
-
-
-def plan_text(preset: Preset, workers: int = 2) -> str:
-    rows = plan(preset, workers)
-    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
-             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
-             f"{preset.ges_max_rounds}):"]
-    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
-              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
-    total = sum(v["hours"] for v in rows.values())
-    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
-                              f"({total * workers:.1f} core-hours)"])
-
-
-def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
-    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
-    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
-    score steps/s: the steps J actually simulated, replays excluded)."""
-    space = space_of(preset, task, "d2")
-    t0 = time.time()
-    ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
-    t1 = time.time()
-    designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
-    stats = {}
-    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
-    scored = time.time() - t1
-    played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
-    return steps / (t1 - t0), scored / n_designs, played / scored
-
-
-# The jobs `--rates` times, as the stages mix them: each kind of policy on each task. The ramp's contacts make its
-# steps dearer than the obstacle's; timing the obstacle alone made the quick run's baselines 36 % longer than
-# planned (docs/quick/stage_seconds.json against `--plan`).
-RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
-
-
-def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
-                  out: str | None = None, jobs: int | None = None) -> dict:
-    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
-    RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
-    rate of the score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on
-    how much a policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED)."""
-    import tempfile
-    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
-    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
-    ex = Run(folder, preset, 0, workers).pool()
-    try:
-        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, preset, steps, n_designs, i)
-                for i, (kind, task) in enumerate(todo)]
-        res = [f.result() for f in futs]
-    finally:
-        ex.shutdown(wait=True)
-        if out is None:
-            shutil.rmtree(folder, ignore_errors=True)
-    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
-    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
-            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
-            "score_rate": float(np.mean(played))}
-
-
-def rates_text(r: dict) -> str:
-    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
-                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
-                                           r["played_steps_per_s"]))
-    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
-            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
-            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
-
-
 # ----------------------------------------------------------------------------------------------------------
-# 3. Small tools
-# ----------------------------------------------------------------------------------------------------------
-def derive_seed(seed: int, *names) -> int:
-    """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
-    results do not depend on the order in which things run."""
-    keys = [zlib.crc32(str(n).encode()) for n in names]
-    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
-
-
-def ckpt_steps(path: str) -> int:
-    return int(ppo.load_checkpoint(path)["steps"])
-
-
-def stage_json(path: str):
-    return read_json(path)["result"]
-
-
-def score_set(path: str) -> np.ndarray:
-    return np.array(read_json(path)["scores"], dtype=float)
-
-
-def fmt_y(y) -> str:
-    """A score J in a progress line (a failed trial's y is None)."""
-    return "failed" if y is None else f"{y:.2f}"
-
-
-_DASK_CLIENTS: dict = {}
-
-
-PROJECT_MODULES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")   # each imports only earlier ones
-PROJECT_PACKAGES = ("runkit",)   # imported by the modules, so uploaded (as zips) before them
-CONNECT_TIMEOUT_S = 5
-
-
-def dask_client(scheduler: str | None, workers: int):
-    """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
-    processes with one thread each (torch keeps one thread per job).
-
-    A cluster started by hand (`dask scheduler`, `dask worker ADDR` anywhere, no PYTHONPATH) gets this checkout's
-    modules from the client (Client.upload_file, to the scheduler too: it unpickles the task graph, which names
-    run_all's functions), and so does every worker that joins later. An unreachable or malformed address is a
-    one-line BadInput after CONNECT_TIMEOUT_S, not distributed's 30 s wait and traceback."""
-    key = (scheduler, workers)
-    if key not in _DASK_CLIENTS:
-        from distributed import Client, LocalCluster
-        if scheduler:
-            try:
-                client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
-            except (OSError, ValueError, TypeError) as e:
-                raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
-                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
-                               f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
-            for name in PROJECT_PACKAGES:
-                with tempfile.TemporaryDirectory() as tmp:
-                    client.upload_file(package_zip(name, tmp))
-            for name in PROJECT_MODULES:
-                client.upload_file(os.path.join(HERE, name))
-            _DASK_CLIENTS[key] = client
-        else:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-            _DASK_CLIENTS[key] = Client(cluster)
-    return _DASK_CLIENTS[key]
-
-
-def package_zip(name: str, folder: str) -> str:
-    """This checkout's package `name` as folder/name.zip: Client.upload_file puts a zip on the workers' sys.path,
-    while it would import a lone .py of a package as a top-level module."""
-    path = os.path.join(folder, f"{name}.zip")
-    with zipfile.ZipFile(path, "w") as z:
-        for f in sorted(glob.glob(os.path.join(HERE, name, "*.py"))):
-            z.write(f, os.path.join(name, os.path.basename(f)))
-    return path
-
-
-def close_dask_clients() -> None:
-    for client in _DASK_CLIENTS.values():
-        cluster = client.cluster
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    _DASK_CLIENTS.clear()
-
-
-def dask_executor(client):
-    """distributed's concurrent.futures executor (pure=False: every submit runs, none is deduplicated). Its
-    shutdown gets the standard `cancel_futures` too (there, wait=False cancels)."""
-    ex = client.get_executor(pure=False)
-    plain = ex.shutdown
-    ex.shutdown = lambda wait=True, cancel_futures=False: plain(wait=wait and not cancel_futures)
-    return ex
-
-
-def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
-    """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
-    a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
-    each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
-    def watch():
-        while os.getppid() == parent_pid:
-            time.sleep(every)
-        os._exit(1)
-    threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
-
-
-def kill_hook(tag: str) -> None:
-    """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
-    if os.environ.get("RUN_ALL_FAIL_AT") == tag:
-        raise RuntimeError(f"simulated kill at {tag}")
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True,
-                             timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE,
-                               capture_output=True, text=True, timeout=10).stdout.strip()
-        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def code_hash() -> str:
-    """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
-    folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
-    h = hashlib.sha256(str(RESULTS_FORMAT).encode())
-    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
-        with open(os.path.join(HERE, name), "rb") as fh:
-            h.update(fh.read())
-    return h.hexdigest()[:16]
-
-
-def trim_log(csv_path: str, steps: int) -> None:
-    """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
-    resumed run's learning curve has no duplicated stretch."""
-    if redo_if_damaged(csv_path, read_log, "learning-curve CSV", "its curve restarts here") is None:
-        return
-    with open(csv_path, newline="") as fh:
-        rows = list(csv.reader(fh))
-    tmp = f"{csv_path}.tmp{os.getpid()}"
-    with open(tmp, "w", newline="") as fh:
-        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
-    os.replace(tmp, csv_path)
-
-
-def train_seconds(log_csv: str) -> float:
-    """A policy's training seconds summed over the attempts that made it, from its learning-curve CSV [ours].
-
-    ppo.train's wall_s restarts at each resume, so a stretch ends where wall_s drops; each stretch counts up to
-    its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
-    figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
-    mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
-    total, prev = 0.0, 0.0
-    for wall in read_log(log_csv)["wall_s"]:
-        wall = float(wall)
-        if wall < prev:   # a resumed attempt's first update
-            total += prev
-        prev = wall
-    return total + prev
-
-
-# ----------------------------------------------------------------------------------------------------------
-# 4. Stages (each a function; each name usable with --only)
+# 3. Stages (each a function; each name usable with --only)
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class Run:
@@ -1096,7 +790,7 @@ def stage_cost(run: Run) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 5. Figures
+# 4. Figures
 # ----------------------------------------------------------------------------------------------------------
 def _plt():
     import matplotlib
@@ -1381,7 +1075,7 @@ STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. REPORT.md and results.json: our numbers beside the paper's
+# 5. REPORT.md and results.json: our numbers beside the paper's
 # ----------------------------------------------------------------------------------------------------------
 # --- the paper's numbers (quoted from paper/ges_paper.tex; "None" = the paper gives no number) ---
 # Table I "BALLU morphology parameters": (lower, upper, baseline)
@@ -1749,7 +1443,289 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 7. Command line
+# 6. Machinery: seeds, checkpoints and logs, Dask, the plan of a preset and the rates it uses
+# ----------------------------------------------------------------------------------------------------------
+def derive_seed(seed: int, *names) -> int:
+    """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
+    results do not depend on the order in which things run."""
+    keys = [zlib.crc32(str(n).encode()) for n in names]
+    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
+
+
+def ckpt_steps(path: str) -> int:
+    return int(ppo.load_checkpoint(path)["steps"])
+
+
+def stage_json(path: str):
+    return read_json(path)["result"]
+
+
+def score_set(path: str) -> np.ndarray:
+    return np.array(read_json(path)["scores"], dtype=float)
+
+
+def fmt_y(y) -> str:
+    """A score J in a progress line (a failed trial's y is None)."""
+    return "failed" if y is None else f"{y:.2f}"
+
+
+_DASK_CLIENTS: dict = {}
+
+
+PROJECT_MODULES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")   # each imports only earlier ones
+PROJECT_PACKAGES = ("runkit",)   # imported by the modules, so uploaded (as zips) before them
+CONNECT_TIMEOUT_S = 5
+
+
+def dask_client(scheduler: str | None, workers: int):
+    """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
+    processes with one thread each (torch keeps one thread per job).
+
+    A cluster started by hand (`dask scheduler`, `dask worker ADDR` anywhere, no PYTHONPATH) gets this checkout's
+    modules from the client (Client.upload_file, to the scheduler too: it unpickles the task graph, which names
+    run_all's functions), and so does every worker that joins later. An unreachable or malformed address is a
+    one-line BadInput after CONNECT_TIMEOUT_S, not distributed's 30 s wait and traceback."""
+    key = (scheduler, workers)
+    if key not in _DASK_CLIENTS:
+        from distributed import Client, LocalCluster
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+            except (OSError, ValueError, TypeError) as e:
+                raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
+                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
+                               f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
+            for name in PROJECT_PACKAGES:
+                with tempfile.TemporaryDirectory() as tmp:
+                    client.upload_file(package_zip(name, tmp))
+            for name in PROJECT_MODULES:
+                client.upload_file(os.path.join(HERE, name))
+            _DASK_CLIENTS[key] = client
+        else:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            _DASK_CLIENTS[key] = Client(cluster)
+    return _DASK_CLIENTS[key]
+
+
+def package_zip(name: str, folder: str) -> str:
+    """This checkout's package `name` as folder/name.zip: Client.upload_file puts a zip on the workers' sys.path,
+    while it would import a lone .py of a package as a top-level module."""
+    path = os.path.join(folder, f"{name}.zip")
+    with zipfile.ZipFile(path, "w") as z:
+        for f in sorted(glob.glob(os.path.join(HERE, name, "*.py"))):
+            z.write(f, os.path.join(name, os.path.basename(f)))
+    return path
+
+
+def close_dask_clients() -> None:
+    for client in _DASK_CLIENTS.values():
+        cluster = client.cluster
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    _DASK_CLIENTS.clear()
+
+
+def dask_executor(client):
+    """distributed's concurrent.futures executor (pure=False: every submit runs, none is deduplicated). Its
+    shutdown gets the standard `cancel_futures` too (there, wait=False cancels)."""
+    ex = client.get_executor(pure=False)
+    plain = ex.shutdown
+    ex.shutdown = lambda wait=True, cancel_futures=False: plain(wait=wait and not cancel_futures)
+    return ex
+
+
+def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
+    """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
+    a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
+    each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(every)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
+
+
+def kill_hook(tag: str) -> None:
+    """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
+    if os.environ.get("RUN_ALL_FAIL_AT") == tag:
+        raise RuntimeError(f"simulated kill at {tag}")
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True,
+                             timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def code_hash() -> str:
+    """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
+    folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
+    h = hashlib.sha256(str(RESULTS_FORMAT).encode())
+    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
+        with open(os.path.join(HERE, name), "rb") as fh:
+            h.update(fh.read())
+    return h.hexdigest()[:16]
+
+
+def trim_log(csv_path: str, steps: int) -> None:
+    """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
+    resumed run's learning curve has no duplicated stretch."""
+    if redo_if_damaged(csv_path, read_log, "learning-curve CSV", "its curve restarts here") is None:
+        return
+    with open(csv_path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    tmp = f"{csv_path}.tmp{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
+    os.replace(tmp, csv_path)
+
+
+def train_seconds(log_csv: str) -> float:
+    """A policy's training seconds summed over the attempts that made it, from its learning-curve CSV [ours].
+
+    ppo.train's wall_s restarts at each resume, so a stretch ends where wall_s drops; each stretch counts up to
+    its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
+    figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
+    mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
+    total, prev = 0.0, 0.0
+    for wall in read_log(log_csv)["wall_s"]:
+        wall = float(wall)
+        if wall < prev:   # a resumed attempt's first update
+            total += prev
+        prev = wall
+    return total + prev
+
+
+# --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
+# [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
+# busy, each kind of policy on each task), measured by `python run_all.py --rates` (docs/presets.md).
+TRAIN_RATE, SCORE_RATE = 880.0, 840.0
+# [ours] share of a J's episodes that ballu.score plays (`reuse` replays the rest exactly): the larger of two
+# measurements, since the plan is an upper bound (docs/presets.md). The step counts below stay every episode's.
+SCORE_PLAYED = 0.66
+
+
+def played_share(preset: Preset) -> float:
+    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
+    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
+
+
+# Fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import torch and
+# pybullet), once per pool a stage starts, and the figures stage (docs/presets.md).
+POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
+POOL_START_S, FIGURES_S = 2.0, 40.0
+
+
+def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
+    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing
+    (but per-design BO: its random startup trials `workers` at a time, the TPE trials after them one at a time),
+    scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
+    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
+    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
+    figures stage (FIGURES_S)."""
+    p, episode = preset, ballu.BalluConfig().episode_steps
+    J = p.score_episodes * episode                                            # one design's score J
+    peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
+    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
+
+    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
+        return np.array([sum(K * p.ges_round_steps for K in Ks), 0, sum(K * p.ges_probes * probe_J for K in Ks)]
+                        ) * p.ges_max_rounds
+
+    cells = len(TASKS) * len(SPACES)
+    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
+    work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
+            "ges": ges([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
+            "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J
+                                + cells * 3 * peak_J, 0]),
+            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
+            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
+            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
+    played = played_share(p)
+    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
+    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
+    startup = min(p.cost_trials, p.tpe_startup)
+    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
+    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
+                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / width.get(stage, workers)
+                              + fixed[stage]) / 3600} for stage, w in work.items()}
+
+
+def plan_text(preset: Preset, workers: int = 2) -> str:
+    rows = plan(preset, workers)
+    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
+             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
+             f"{preset.ges_max_rounds}):"]
+    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
+              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
+    total = sum(v["hours"] for v in rows.values())
+    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
+                              f"({total * workers:.1f} core-hours)"])
+
+
+def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
+    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
+    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
+    score steps/s: the steps J actually simulated, replays excluded)."""
+    space = space_of(preset, task, "d2")
+    t0 = time.time()
+    ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
+    t1 = time.time()
+    designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
+    stats = {}
+    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
+    scored = time.time() - t1
+    played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
+    return steps / (t1 - t0), scored / n_designs, played / scored
+
+
+# The jobs `--rates` times, as the stages mix them: each kind of policy on each task (the ramp's contacts make
+# its steps dearer than the obstacle's; docs/presets.md).
+RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
+
+
+def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
+                  out: str | None = None, jobs: int | None = None) -> dict:
+    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
+    RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
+    rate of the score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on
+    how much a policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED)."""
+    import tempfile
+    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
+    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
+    ex = Run(folder, preset, 0, workers).pool()
+    try:
+        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, preset, steps, n_designs, i)
+                for i, (kind, task) in enumerate(todo)]
+        res = [f.result() for f in futs]
+    finally:
+        ex.shutdown(wait=True)
+        if out is None:
+            shutil.rmtree(folder, ignore_errors=True)
+    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
+    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
+            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
+            "score_rate": float(np.mean(played))}
+
+
+def rates_text(r: dict) -> str:
+    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
+                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
+                                           r["played_steps_per_s"]))
+    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
+            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
+            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. Command line: check the arguments and the output folder, run the stages, write the report
 # ----------------------------------------------------------------------------------------------------------
 def parse(argv):
     ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
