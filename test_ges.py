@@ -29,6 +29,7 @@ import ges
 import ppo
 import run_all
 from experiments import ballu_capability, ppo_ballu, ppo_protocol, probe_agreement
+from report import tables
 from runkit import progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
@@ -2075,15 +2076,15 @@ def test_runkit_uncertainty_against_independent_references():
     assert rstats.wins(np.array([3, 2, 1, 1]), np.array([1, 2, 3, 1])) == {"win_pct": 25.0, "tie_pct": 50.0}
 
 
-def test_run_all_best_of_needs_every_comparison():
+def test_report_best_of_needs_every_comparison():
     """A claim 'X is best' is supported when X beats every other, not supported when some other beats X."""
     rng = np.random.default_rng(0)
     x = rng.normal(10, 3, 400)
     a = x + rng.normal(0.5, 1.0, len(x))
     table = {"a": {"scores": a.tolist()}, "b": {"scores": x.tolist()}}
-    assert run_all.best_of(table, "a") == "supported" and run_all.best_of(table, "b") == "not supported"
+    assert tables.best_of(table, "a") == "supported" and tables.best_of(table, "b") == "not supported"
     table["c"] = {"scores": (a + rng.normal(0, 1, len(x))).tolist()}   # a rival a does not beat
-    assert run_all.best_of(table, "a") == "not resolved" and run_all.best_of(table, "d") == "not measured"
+    assert tables.best_of(table, "a") == "not resolved" and tables.best_of(table, "d") == "not measured"
 
 
 def raw_numbers(out: str) -> dict:
@@ -2196,7 +2197,7 @@ def test_run_all_small_rules():
     seed = run_all.derive_seed
     assert (seed(0, "ppo", "a"), seed(1, "ppo", "a"), seed(0, "a"), seed(0, "b")) == (
         1460073160, 529933479, 450999037, 1911616833)
-    assert run_all.cell(12.345, None) == "12.3 (-)" and run_all.cell(None, 36.9) == "- (36.9)"
+    assert tables.cell(12.345, None) == "12.3 (-)" and tables.cell(None, 36.9) == "- (36.9)"
     for p in run_all.PRESETS.values():   # GES budgets must fit the per-policy budget's meaning
         assert p.ges_round_steps * p.ges_max_rounds <= p.ppo_steps * 1.01 and p.cost_trials <= p.tpe_trials
         ballu.check_level_steps(p.probe_level_steps, None)   # a valid probe schedule, or None
@@ -2456,46 +2457,49 @@ def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
     assert hours(cost_trials=4, tpe_startup=10) == pytest.approx(2 * one)
 
 
-def test_run_all_cost_claim_needs_a_saving_beyond_the_drift():
+def test_report_cost_claim_needs_a_saving_beyond_the_drift():
     """One timing per side has no CI: a saving within the machine's +-20 % drift (0.4 %) is 'not resolved', not
     'supported'; 37 % is 'supported', a 30 % loss 'not supported'."""
     for red, want in ((0.4, "not resolved"), (37.0, "supported"), (-30.0, "not supported")):
-        rows = [l for l in run_all.report_claims({"cost": {"reduction_pct": red}}) if "per-design BO" in l]
+        rows = [l for l in tables.report_claims({"cost": {"reduction_pct": red}}) if "per-design BO" in l]
         assert len(rows) == 1 and f"| {want} |" in rows[0], (red, rows)
 
 
-def test_run_all_cost_claim_from_the_break_even_trial_count():
+def test_report_cost_claim_from_the_break_even_trial_count():
     """GES pays a fixed cost, then a cheap J per trial; BO a training per trial: n* = fixed / (BO - GES per trial)
     with a bootstrap interval over BO's trials; supported when even the interval's top (+20 % drift) is < 40."""
     cost = {"bo_trial_s": [100.0, 100.0, 100.0], "ges_fixed_s": 300.0, "ges_per_trial_s": 10.0}
-    n, lo, hi = run_all.break_even(cost)
+    n, lo, hi = tables.break_even(cost)
     assert n == pytest.approx(300 / 90) and lo == pytest.approx(n) and hi == pytest.approx(n)
-    assert run_all.cost_claim(cost)[1] == "supported"
-    assert run_all.cost_claim(dict(cost, ges_fixed_s=4000.0))[1] == "not resolved"     # n* = 44.4, within drift
-    assert run_all.cost_claim(dict(cost, ges_fixed_s=9000.0))[1] == "not supported"    # n* = 100
-    assert run_all.break_even(dict(cost, ges_per_trial_s=150.0))[0] == math.inf        # BO's trial is cheaper
+    assert tables.cost_claim(cost)[1] == "supported"
+    assert tables.cost_claim(dict(cost, ges_fixed_s=4000.0))[1] == "not resolved"     # n* = 44.4, within drift
+    assert tables.cost_claim(dict(cost, ges_fixed_s=9000.0))[1] == "not supported"    # n* = 100
+    assert tables.break_even(dict(cost, ges_per_trial_s=150.0))[0] == math.inf        # BO's trial is cheaper
     spread = dict(cost, bo_trial_s=[50.0, 100.0, 150.0])
-    n, lo, hi = run_all.break_even(spread)
+    n, lo, hi = tables.break_even(spread)
     assert lo < n < hi and hi == pytest.approx(300 / (50 - 10), rel=0.05)   # the interval's top: all trials at 50
 
 
-def test_run_all_gait_features_and_designs_needed():
-    """Gait features of a known toe trajectory: a 2.5 Hz hop of 10 cm, both toes up part of the time; and
-    the designs a paired test needs at 80 % power: (2.8 sd / mean)^2."""
+def test_run_all_gait_features_of_a_known_hop():
+    """Gait features of a known toe trajectory: a 2.5 Hz hop of 10 cm, both toes up part of the time."""
     dt = ballu.BalluConfig().control_dt
     t = np.arange(400) * dt
     z = np.clip(0.1 * np.sin(2 * np.pi * 2.5 * t), 0, None) + 0.004
     f = run_all.gait_features(np.stack([z, z + 0.001], axis=1), dt)
     assert f["step_hz"] == pytest.approx(2.5) and f["peak_toe_cm"] == pytest.approx(10.4, abs=0.05)
     assert f["airborne_pct"] == pytest.approx(100 * np.mean(z > 0.02))
+
+
+def test_report_designs_needed_at_80_percent_power():
+    """The designs a paired test needs to resolve a difference at 80 % power: (2.8 sd / mean)^2."""
     rng = np.random.default_rng(0)
     base = rng.normal(20, 5, 20)
     d = rng.normal(0.5, 2.0, 20)
     res = {"a": {"scores": (base + d).tolist()}, "b": {"scores": base.tolist()}}
     want = math.ceil((2.8 * d.std(ddof=1) / abs(d.mean())) ** 2)
-    assert run_all.designs_needed(res, "a") == f"a verdict needs ~{want} test designs at the measured spread"
+    assert tables.designs_needed(res, "a") == f"a verdict needs ~{want} test designs at the measured spread"
     res["a"]["scores"] = (base + 3.0).tolist()
-    assert run_all.designs_needed(res, "a") == "every comparison resolved"
+    assert tables.designs_needed(res, "a") == "every comparison resolved"
 
 
 @pytest.mark.slow
