@@ -52,9 +52,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-import zipfile
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
@@ -71,6 +69,7 @@ from report.tables import (GAIT_FEATURES, md_table, report_claims, report_cost, 
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.logs import read_log
+from runkit.pool import close_dask_clients, dask_client, dask_executor, exit_with_parent
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
 from runkit.stats import wins
 
@@ -390,7 +389,7 @@ class Run:
         cluster's, a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs
         its env in its own process (workers=1 inside), so any executor gives the same numbers."""
         if self.executor == "dask":
-            return dask_executor(dask_client(self.scheduler, self.workers))
+            return dask_executor(cluster(self.scheduler, self.workers))
         if self.workers <= 1:
             return ges.SerialExecutor()
         return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
@@ -1167,81 +1166,13 @@ def fmt_y(y) -> str:
     return "failed" if y is None else f"{y:.2f}"
 
 
-_DASK_CLIENTS: dict = {}
+# this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
+PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")
 
 
-PROJECT_MODULES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")   # each imports only earlier ones
-PROJECT_PACKAGES = ("runkit", "report")   # imported by the modules, so uploaded (as zips) before them
-CONNECT_TIMEOUT_S = 5
-
-
-def dask_client(scheduler: str | None, workers: int):
-    """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
-    processes with one thread each (torch keeps one thread per job).
-
-    A cluster started by hand (`dask scheduler`, `dask worker ADDR` anywhere, no PYTHONPATH) gets this checkout's
-    modules from the client (Client.upload_file, to the scheduler too: it unpickles the task graph, which names
-    run_all's functions), and so does every worker that joins later. An unreachable or malformed address is a
-    one-line BadInput after CONNECT_TIMEOUT_S, not distributed's 30 s wait and traceback."""
-    key = (scheduler, workers)
-    if key not in _DASK_CLIENTS:
-        from distributed import Client, LocalCluster
-        if scheduler:
-            try:
-                client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
-            except (OSError, ValueError, TypeError) as e:
-                raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
-                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
-                               f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
-            for name in PROJECT_PACKAGES:
-                with tempfile.TemporaryDirectory() as tmp:
-                    client.upload_file(package_zip(name, tmp))
-            for name in PROJECT_MODULES:
-                client.upload_file(os.path.join(HERE, name))
-            _DASK_CLIENTS[key] = client
-        else:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-            _DASK_CLIENTS[key] = Client(cluster)
-    return _DASK_CLIENTS[key]
-
-
-def package_zip(name: str, folder: str) -> str:
-    """This checkout's package `name` as folder/name.zip: Client.upload_file puts a zip on the workers' sys.path,
-    while it would import a lone .py of a package as a top-level module."""
-    path = os.path.join(folder, f"{name}.zip")
-    with zipfile.ZipFile(path, "w") as z:
-        for f in sorted(glob.glob(os.path.join(HERE, name, "*.py"))):
-            z.write(f, os.path.join(name, os.path.basename(f)))
-    return path
-
-
-def close_dask_clients() -> None:
-    for client in _DASK_CLIENTS.values():
-        cluster = client.cluster
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    _DASK_CLIENTS.clear()
-
-
-def dask_executor(client):
-    """distributed's concurrent.futures executor (pure=False: every submit runs, none is deduplicated). Its
-    shutdown gets the standard `cancel_futures` too (there, wait=False cancels)."""
-    ex = client.get_executor(pure=False)
-    plain = ex.shutdown
-    ex.shutdown = lambda wait=True, cancel_futures=False: plain(wait=wait and not cancel_futures)
-    return ex
-
-
-def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
-    """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
-    a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
-    each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
-    def watch():
-        while os.getppid() == parent_pid:
-            time.sleep(every)
-        os._exit(1)
-    threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
+def cluster(scheduler: str | None, workers: int):
+    """The Dask client of this run (runkit.pool.dask_client), with this checkout's files to upload."""
+    return dask_client(scheduler, workers, [os.path.join(HERE, f) for f in PROJECT_FILES])
 
 
 def kill_hook(tag: str) -> None:
@@ -1464,7 +1395,7 @@ def check_args(args) -> tuple:
         except ImportError:
             raise BadInput("--executor dask needs the 'distributed' package (pip install distributed)") from None
         if args.scheduler:
-            dask_client(args.scheduler, args.workers)   # connect now: a wrong address fails before anything is written
+            cluster(args.scheduler, args.workers)   # connect now: a wrong address fails before anything is written
     return [s for s in STAGES if s in only]
 
 

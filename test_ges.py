@@ -30,7 +30,7 @@ import ppo
 import run_all
 from experiments import ballu_capability, ppo_ballu, ppo_protocol, probe_agreement
 from report import tables
-from runkit import progress
+from runkit import pool, progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
 from ballu import BASELINE, BalluConfig, BalluEnv
@@ -2162,12 +2162,12 @@ def test_run_all_on_a_dask_cluster_started_by_hand_gives_the_same_numbers(smoke_
 def test_run_all_local_dask_cluster_runs_jobs():
     """`--executor dask` without --scheduler: a local cluster of --workers processes runs run_all's jobs (the
     numbers' equality is the hand-started cluster's test above)."""
-    ex = run_all.dask_executor(run_all.dask_client(None, 2))
+    ex = run_all.Run("unused", run_all.SMOKE, 0, 2, "dask").pool()
     try:
         assert ex.submit(run_all.derive_seed, 3, "ppo", "a").result() == run_all.derive_seed(3, "ppo", "a")
     finally:
         ex.shutdown(wait=True)
-        run_all.close_dask_clients()
+        pool.close_dask_clients()
 
 
 @pytest.mark.parametrize("address, words", [("notanaddress", "missing port number"),
@@ -2178,7 +2178,7 @@ def test_run_all_bad_scheduler_is_one_line_within_seconds(address, words, tmp_pa
     assert run_all.main(["--preset", "smoke", "--out", str(tmp_path / "x"), "--executor", "dask",
                          "--scheduler", address]) == 2
     err = capsys.readouterr().err
-    assert time.time() - t0 < run_all.CONNECT_TIMEOUT_S + 5 and not (tmp_path / "x").exists()
+    assert time.time() - t0 < pool.CONNECT_TIMEOUT_S + 5 and not (tmp_path / "x").exists()
     assert err.count("\n") == 1 and f"error: --scheduler {address}: no Dask scheduler reachable" in err
     assert words in err
 
@@ -2283,7 +2283,7 @@ def _alive(pid: int) -> bool:
 @pytest.mark.slow
 def test_run_all_pool_workers_exit_when_the_run_is_killed(tmp_path):
     """A run_all killed with SIGKILL must not leave its process-pool workers running their in-flight jobs
-    (run_all.exit_with_parent): both workers are gone within a few seconds of the kill."""
+    (runkit.pool.exit_with_parent): both workers are gone within a few seconds of the kill."""
     import signal
     import time
     parent = subprocess.Popen([sys.executable, "-c", _ORPHAN_PARENT, str(tmp_path)], cwd=os.path.dirname(
