@@ -24,7 +24,8 @@ Read top to bottom, the paper's experiments section in order:
   6. machinery: derived seeds, Dask, a kill hook for the resume test, --plan's arithmetic and --rates
   7. the command line
 Machinery that knows nothing of BALLU or GES (progress lines and the one ETA formula, atomic JSON and damaged
-files, the stage clock, the report's statistics) lives in runkit/.
+files, the training log, the output folder, the stage clock, Dask and the process pool, the report's
+statistics) lives in runkit/.
 
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
 
@@ -49,7 +50,6 @@ import math
 import multiprocessing as mp
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -68,7 +68,8 @@ from report.tables import (GAIT_FEATURES, md_table, report_claims, report_cost, 
                            report_ksens, report_table1, report_table2, report_table3)
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
-from runkit.logs import read_log
+from runkit.folder import check_output, git_commit, open_output
+from runkit.logs import read_log, train_seconds, trim_log
 from runkit.pool import close_dask_clients, dask_client, dask_executor, exit_with_parent
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
 from runkit.stats import wins
@@ -1088,7 +1089,7 @@ def report_header(run: Run, manifest: dict) -> list:
             "Every cell is **ours (paper)**. Paper numbers are constants in report/paper.py quoted from "
             "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
             "budgets below). '-' = not measured yet / not given by the paper.", "",
-            f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
+            f"- seed {run.seed}; git commit {git_commit(HERE)} (results folder created at {manifest['git_commit']}); "
             f"code hash {manifest['code_hash']}",
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
             f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
@@ -1140,7 +1141,7 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. Machinery: seeds, checkpoints and logs, Dask, the plan of a preset and the rates it uses
+# 6. Machinery: seeds, work files, the files a Dask cluster gets, the plan of a preset and the rates it uses
 # ----------------------------------------------------------------------------------------------------------
 def derive_seed(seed: int, *names) -> int:
     """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
@@ -1181,17 +1182,6 @@ def kill_hook(tag: str) -> None:
         raise RuntimeError(f"simulated kill at {tag}")
 
 
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True,
-                             timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE,
-                               capture_output=True, text=True, timeout=10).stdout.strip()
-        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def code_hash() -> str:
     """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
     folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
@@ -1200,35 +1190,6 @@ def code_hash() -> str:
         with open(os.path.join(HERE, name), "rb") as fh:
             h.update(fh.read())
     return h.hexdigest()[:16]
-
-
-def trim_log(csv_path: str, steps: int) -> None:
-    """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
-    resumed run's learning curve has no duplicated stretch."""
-    if redo_if_damaged(csv_path, read_log, "learning-curve CSV", "its curve restarts here") is None:
-        return
-    with open(csv_path, newline="") as fh:
-        rows = list(csv.reader(fh))
-    tmp = f"{csv_path}.tmp{os.getpid()}"
-    with open(tmp, "w", newline="") as fh:
-        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
-    os.replace(tmp, csv_path)
-
-
-def train_seconds(log_csv: str) -> float:
-    """A policy's training seconds summed over the attempts that made it, from its learning-curve CSV [ours].
-
-    ppo.train's wall_s restarts at each resume, so a stretch ends where wall_s drops; each stretch counts up to
-    its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
-    figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
-    mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
-    total, prev = 0.0, 0.0
-    for wall in read_log(log_csv)["wall_s"]:
-        wall = float(wall)
-        if wall < prev:   # a resumed attempt's first update
-            total += prev
-        prev = wall
-    return total + prev
 
 
 # --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
@@ -1399,29 +1360,6 @@ def check_args(args) -> tuple:
     return [s for s in STAGES if s in only]
 
 
-def check_output(out: str, manifest: dict, fresh: bool) -> bool:
-    """Read-only check of the output folder; True if it holds this very run (reuse its finished work).
-    Refuses a non-empty folder that is not ours, and one made by another preset / budgets / seed / code
-    version unless --fresh."""
-    mpath = os.path.join(out, "manifest.json")
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise BadInput(f"--out {out} exists and is not a folder")
-    if not (os.path.isdir(out) and os.listdir(out)):
-        return False
-    if not os.path.exists(mpath):
-        raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
-    if fresh:   # ours (it has a manifest.json), wiped whatever that file holds
-        return False
-    old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
-    keys = ("results_format", "preset", "budgets", "seed", "code_hash")
-    diff = [k for k in keys if old.get(k) != manifest[k]]
-    if diff and not fresh:
-        raise BadInput(f"{out} holds results of a different " + ", ".join(
-            f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
-            for k in diff) + "; rerun with --fresh to start over or choose another --out")
-    return not fresh
-
-
 def stage_done(out: str, name: str) -> bool:
     """A stage's result is there and readable (a damaged one is redone: repair)."""
     path = os.path.join(out, "stages", f"{name}.json")
@@ -1467,22 +1405,6 @@ def repair(run: Run) -> None:
             train_baseline(run, *job)
 
 
-def open_output(out: str, manifest: dict, reuse: bool) -> dict:
-    """Start over (wipe our own old folder) or reuse it; returns the folder's manifest."""
-    mpath = os.path.join(out, "manifest.json")
-    if reuse:
-        return read_json(mpath)
-    try:
-        if os.path.isdir(out):
-            shutil.rmtree(out)   # check_output allowed it: empty, or ours and --fresh
-        os.makedirs(out)
-        write_json(mpath, manifest)
-    except OSError as e:
-        shutil.rmtree(out, ignore_errors=True)   # a failed command leaves no empty folder behind
-        raise BadInput(f"cannot write to output folder {out}: {e}") from None
-    return manifest
-
-
 def run_stage(run: Run, name: str) -> float:
     """Run one stage unless its result exists; record its wall time (summed over attempts); returns the seconds
     it ran (0 if skipped)."""
@@ -1518,7 +1440,7 @@ def main(argv=None) -> int:
         stages = check_args(args)
         manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
                     "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed, "code_hash": code_hash(),
-                    "git_commit": git_commit(), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+                    "git_commit": git_commit(HERE), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
         reuse = check_output(out, manifest, args.fresh)
         check_needs(out, stages, reuse)
         manifest = open_output(out, manifest, reuse)

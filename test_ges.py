@@ -30,7 +30,7 @@ import ppo
 import run_all
 from experiments import ballu_capability, ppo_ballu, ppo_protocol, probe_agreement
 from report import tables
-from runkit import pool, progress
+from runkit import logs, pool, progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
 from ballu import BASELINE, BalluConfig, BalluEnv
@@ -2359,11 +2359,11 @@ def test_run_all_train_seconds_counts_every_attempt(tmp_path):
         if len(calls) == 1:   # a kill after 3 more updates, then the resume's trim
             with open(log, "a") as fh:
                 fh.writelines(f"{2560 + 128 * i},{99.0 + i}" + ",0" * 9 + "\n" for i in (1, 2, 3))
-            run_all.trim_log(log, 2560)
-    wall = run_all.read_log(log)["wall_s"]
+            logs.trim_log(log, 2560)
+    wall = logs.read_log(log)["wall_s"]
     assert len(wall) == 40 and wall[20] < wall[19]
-    assert run_all.train_seconds(log) == pytest.approx(wall[19] + wall[39])
-    assert wall[39] < run_all.train_seconds(log) <= sum(calls)
+    assert logs.train_seconds(log) == pytest.approx(wall[19] + wall[39])
+    assert wall[39] < logs.train_seconds(log) <= sum(calls)
     run = run_all.Run(str(tmp_path / "run"), run_all.SMOKE, 0, 1)
     bo = run_all.PerDesignBO(run, "obstacle", run_all.space_of(run_all.SMOKE, "obstacle", "d2"))
     trial = run_all.tpe.Trial(0, np.array([0.8, 0.01]), 1.0, None, 5.0)
