@@ -397,9 +397,9 @@ class BalluConfig:
     # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
     terrain_width: float = 10.0
     solver_iterations: int = 10           # [ours] PyBullet contact solver iterations (measured stable)
-    # Stability with the instant knee target [ours], measured by `python ballu.py --audit 200` (random
-    # open-loop bang-bang actions on random D3 designs; docs/capability): with the facts' bare robot 45 % of
-    # episodes blew up.
+    # Stability with the instant knee target [ours], measured by
+    # `python -m experiments.ballu_capability --audit 200` (random open-loop bang-bang actions on random D3
+    # designs; docs/capability): with the facts' bare robot 45 % of episodes blew up.
     # - pelvis_inertia: the pelvis is a 2 g rod spinning freely about the hip axis (passive neck and hips),
     #   pitch inertia 2.9e-8 kg m^2; it whirled at PyBullet's 100 rad/s joint-speed cap and exploded. A floor
     #   of 1e-4 on its three axes (a free axle; the legs' inertia about the hips is 8e-5..5e-4 each) ends that.

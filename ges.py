@@ -29,9 +29,9 @@ specialists can run in a process pool):
     score_fn(k, ckpt, designs) -> (n,) array of scores, higher is better
         designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
 
-Read top to bottom: 1. the design box, 2. settings, 3. randomness, 4. territories (f_k, coverage, router,
-refit), 5. initialisation, 6. executors, 7. state and results, 8. the GES loop (Alg. 1), 9. the synthetic
-landscape, figures and command line.
+Read top to bottom: 1. the design box, 2. settings and randomness, 3. territories (f_k, coverage, router, refit),
+4. initialisation, 5. executors, 6. state, history and result, 7. the GES loop (Alg. 1), 8. the routed
+evaluator, 9. figures, 10. the synthetic landscape, 11. benchmark and command line.
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn),
 plot_territories(history, path). `python ges.py --bench` times coverage/routing, `python ges.py --demo OUT`

@@ -35,6 +35,8 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from runkit.progress import eta_s
+
 
 # ----------------------------------------------------------------------------------------------------------
 # 1. Settings
@@ -526,7 +528,7 @@ class TrainLog:
             self.csv.writerow(row)
             self.file.flush()
         if self.progress:
-            eta = (self.total_steps - steps) / max(rate, 1e-9)
+            eta = eta_s(dt, n, self.total_steps - steps)   # at the last update's pace
             ret = f"{ep_ret:+8.2f}" if math.isfinite(ep_ret) else f"{'-':>8}"   # no episode has ended yet
             self.progress(f"[{self.kind}] {steps:>9,}/{self.total_steps:,} steps  {rate:6.0f} steps/s (rollout "
                           f"{100 * t_roll / dt:3.0f}%)  reward {reward:+.3f}  return {ret}  "

@@ -1,15 +1,15 @@
 """run_all.py -- one command that regenerates every table and figure of the GES paper with our code.
 
-    python run_all.py [--preset smoke|quick|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S] [--fresh]
-    python run_all.py --probe-agreement CKPT,CKPT,... [--task obstacle] [--designs 20] [--level-steps 16,8,...]
+    python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S]
+                      [--fresh] [--executor process|dask [--scheduler ADDRESS]]
+    python run_all.py --plan | --rates [--preset P] [--workers N]    # the preset's hours / measure the rates
 
-Read top to bottom:
+Read top to bottom, the paper's experiments section in order:
   1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
      design sampler; GES's train and score callables (ges.py's contract); J(theta) of every method, GES's
      through the density router (eq. 10, ges.RoutedEvaluator)
-  2. presets: every budget of a run in one dataclass, with the timing arithmetic next to each preset
-  3. small tools: derived seeds, atomic JSON, progress lines with ETA, a kill hook for the resume test
-  4. stages (each a function, each name usable with --only):
+  2. presets: every budget of a run in one dataclass
+  3. stages (each a function, each name usable with --only):
        table1     the design space and the baseline design                       (paper Table I)
        baselines  PPO policies: baseline design, e2e MLP and e2e MoE per task/space (Sec. V-A)
        ges        GES stage 1 for obstacle/ramp x D2/D3 (K = 3 / 6)                 (Alg. 1)
@@ -18,10 +18,14 @@ Read top to bottom:
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve
-  5. figures
-  6. REPORT.md: the paper's numbers (quoted from the tex) and every table with each cell as "ours (paper)",
-     the budgets, seed, commit, wall times
+  4. figures
+  5. REPORT.md and results.json from the stages' results: the header (budgets, seed, commit) and wall times
+     here; the paper's numbers and every table with each cell as "ours (paper)" in report/
+  6. machinery: derived seeds, Dask, a kill hook for the resume test, --plan's arithmetic and --rates
   7. the command line
+Machinery that knows nothing of BALLU or GES (progress lines and the one ETA formula, atomic JSON and damaged
+files, the training log, the output folder, the stage clock, Dask and the process pool, the report's
+statistics) lives in runkit/.
 
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
 
@@ -45,13 +49,10 @@ import json
 import math
 import multiprocessing as mp
 import os
-import re
 import shutil
-import subprocess
 import sys
-import threading
+import tempfile
 import time
-import warnings
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
@@ -62,6 +63,16 @@ import ballu
 import ges
 import ppo
 import tpe
+from report.paper import METHOD_NAMES, PAPER_KSENS_PEAK_K, PAPER_TABLE2
+from report.tables import (GAIT_FEATURES, md_table, report_claims, report_cost, report_figures, report_ges_runs,
+                           report_ksens, report_table1, report_table2, report_table3)
+from runkit.clock import StageClock, stage_times
+from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
+from runkit.folder import check_output, git_commit, open_output
+from runkit.logs import read_log, train_seconds, trim_log
+from runkit.pool import close_dask_clients, dask_client, dask_executor, exit_with_parent
+from runkit.progress import Progress, Throttled, eta_s, run_eta, say
+from runkit.stats import wins
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS_FORMAT = 2   # bump when what a stage computes or stores changes: old result folders are then refused
@@ -74,7 +85,6 @@ TASKS = ("obstacle", "ramp")
 SPACES = ("d2", "d3")
 UNIT = {"obstacle": "cm", "ramp": "deg"}
 METHODS = ("baseline", "mlp", "moe", "ges")          # "baseline" = the baseline design's own policy
-METHOD_NAMES = {"baseline": "baseline policy", "mlp": "e2e MLP", "moe": "e2e MoE", "ges": "GES"}
 
 
 def space_of(preset: Preset, task: str, sp: str) -> ballu.DesignSpace:
@@ -296,9 +306,8 @@ class Preset:
     peak_episodes: int | None = None
 
 
-# A bisection over curriculum levels for GES's probe scores (ours; ballu.score's `level_steps`): ~3x cheaper than
-# the 20-episode J. In no preset: on trained e2e MLPs it picked J's winner on 55 % of designs (bar 80 %), and J
-# itself on designs moved by 0.1 % agrees with J no better (docs/probe_agreement). Kept for a better schedule.
+# [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
+# than the 20-episode J; in no preset: it picks J's winner too rarely (docs/probe_agreement).
 BISECTION = (16, 8, 4, 2, 1, 1, 1)
 
 
@@ -313,22 +322,11 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
                probe_level_steps=(2,), peak_episodes=2)
 
-# quick: every table and figure in <= 2 h on a 2-core machine, planned on the measured rates below with a 15 %
-# margin (`python run_all.py --preset quick --plan`: 1.79 h with GES at its round cap; measured 1.83 h).
-# What it buys (hours on 2 cores):
-#   - baselines 0.60: 10 standalone policies (2 baseline-design + 4 e2e MLP + 4 e2e MoE) x 380k steps, what the
-#     margin allows (the e2e MLP's obstacle level climbs until ~0.5 M steps in the protocol, docs/ppo_protocol);
-#   - GES 0.32 + Table III 0.21 + Fig. 7 0.04: specialists warm-start from their cell's e2e MLP (ges_warm_start;
-#     ours: from random init they would get ~30k steps each), then train / probe / refit until 95 % coverage or
-#     3 rounds (10k steps each, F = 5 probes, each a 20-episode J). Probes are most of GES's cost, so Fig. 7
-#     runs K = 1 and 3 (GES's own run), not the paper's 1-6 (overnight and paper do);
-#   - Table II 0.36: 20 test designs per cell and method (paired CI of GES - e2e MLP ~+-3 cm at the last quick
-#     run's sd of 6-7 cm), TPE design searches of 6 trials (3 random), each search's peak scored again by a
-#     30-episode J; cost 0.24: 3 per-design BO trials (a per-trial mean and spread for the break-even count).
-# ges_init_designs = 2 (ours; facts: 50): a refit averages a territory's n_init seed designs with the probes it
-# won, so growth per round is set by F / n_init (`python ges.py --sweep`, planted landscape): n_init 2 grows
-# 12 % -> 16-25 % (D2) in 3 rounds with F = 6, n_init 50 stays flat. Reaching 95 % takes ~100 probe J per
-# specialist in D2 and ~200 in D3: hours of probes, so quick reports each run's coverage at its cap.
+# quick: every table and figure in <= 2 h on 2 cores (`--plan`, with a 15 % margin): 380k PPO steps per policy;
+# specialists warm-start from their cell's e2e MLP (ges_warm_start, ours) for <= 3 rounds of 10k steps with F = 5;
+# Fig. 7 at K = 1 and 3 only (probes are most of GES's cost); 20 test designs; TPE searches of 6 trials.
+# ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init (`python ges.py --sweep`). What each
+# stage buys, in hours and centimetres: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, K_d2=3, K_d3=6, ges_max_rounds=3,
                ges_target_coverage=0.95, ges_probes=5, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
@@ -336,16 +334,9 @@ QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, 
                table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=3, ges_warm_start=True,
                peak_episodes=30)
 
-# overnight: one night on 2 cores (`--plan`: 10.3 h with every GES run at its round cap, 11.9 h with a 15 % margin).
-#   - baselines 1.58: 1 M PPO steps per policy, the protocol's milestone (docs/ppo_protocol/new_robot: its e2e MLP
-#     scores 17.8 cm / 28.6 deg there, and 2 M add nothing on the obstacle);
-#   - GES 2.65 + Table III 1.46 + Fig. 7 (K = 1-6) 2.87: 100k steps per specialist and round, F = 10 probes, at
-#     most 6 rounds (facts: 20). The quick run's D2 reached 95 % in 2-3 rounds of F = 5 (D3: 71-78 % after 3), so
-#     a D2 specialist trains ~200-300k steps: at 30k each the specialists scored 2.0 cm below the e2e MLP they
-#     start from, at 300k -0.1 +- 0.7 cm (docs/ges_lanes, 3 seeds); a run that stops at the cap reports its coverage;
-#   - Table II 1.14: 50 test designs (paired CI of GES - e2e MLP ~+-2 cm at the quick run's sd of the paired
-#     differences, 6-7 cm), the paper's 40 TPE trials (10 random first; each trial is one J, cheap), peaks
-#     rescored by a 30-episode J; cost 0.64: 4 per-design BO trials of 1 M steps.
+# overnight: one night on 2 cores (`--plan`: 10.3 h with every GES run at its round cap): 1 M PPO steps per
+# policy (the PPO protocol's milestone); GES rounds of 100k steps with F = 10, to 95 % coverage or 6 rounds (facts:
+# 20); Fig. 7 at K = 1-6; 50 test designs; the paper's 40 TPE trials. The numbers behind each: docs/presets.md.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
                    score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=6,
                    ges_target_coverage=0.95, ges_probes=10, ges_probe_pool=2000, ges_init_designs=2,
@@ -365,387 +356,8 @@ PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_env
 PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
 
-# --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
-# Per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores busy),
-# measured by `python run_all.py --rates` (2026-11-26, new robot, AMD EPYC, alone): PPO training at the quick
-# preset's batch, an e2e MLP and MoE on each task (978 and 878 steps/s in two runs; the lower one here), and the
-# score steps J actually played (844/s: MLP 942-1027, MoE 695-711). Rates measured with one job on both cores made
-# the plan 1.4x too short, and timing the obstacle alone made the baselines 36 % longer than planned.
-TRAIN_RATE, SCORE_RATE = 880.0, 840.0
-# Share of a J's episodes that ballu.score plays (`reuse`: each level of a walk once, the rest replayed exactly):
-# 0.52-0.80 (mean 0.66) for four e2e MLPs at 1 M steps on 12 held-out designs (obstacle, from level 28), previous
-# robot; 0.48-0.68 (mean 0.57) for the new robot's three lr_cap MLPs at 1 M. The larger one is kept (the plan is an
-# upper bound). The step counts below stay those of every episode.
-SCORE_PLAYED = 0.66
-
-
-def played_share(preset: Preset) -> float:
-    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
-    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
-
-
-# Fixed costs (smoke's wall time is mostly these): a process pool's start, its `workers` spawned processes importing
-# torch and pybullet (~2 s on idle cores, the comment in train_policy; 7-8 s measured with a PPO training on both
-# cores), once per pool a stage starts; and the figures stage (9.5 s in a smoke run, 40 s in the quick run).
-POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
-POOL_START_S, FIGURES_S = 2.0, 40.0
-
-
-def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
-    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
-    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing
-    (but per-design BO: its random startup trials `workers` at a time, the TPE trials after them one at a time),
-    scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
-    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
-    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
-    figures stage (FIGURES_S)."""
-    p, episode = preset, ballu.BalluConfig().episode_steps
-    J = p.score_episodes * episode                                            # one design's score J
-    peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
-    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
-
-    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
-        return np.array([sum(K * p.ges_round_steps for K in Ks), 0, sum(K * p.ges_probes * probe_J for K in Ks)]
-                        ) * p.ges_max_rounds
-
-    cells = len(TASKS) * len(SPACES)
-    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
-    work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
-            "ges": ges([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
-            "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J
-                                + cells * 3 * peak_J, 0]),
-            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
-            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
-            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
-    played = played_share(p)
-    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
-    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
-    startup = min(p.cost_trials, p.tpe_startup)
-    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
-    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / width.get(stage, workers)
-                              + fixed[stage]) / 3600} for stage, w in work.items()}
-
-
-def plan_text(preset: Preset, workers: int = 2) -> str:
-    rows = plan(preset, workers)
-    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
-             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
-             f"{preset.ges_max_rounds}):"]
-    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
-              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
-    total = sum(v["hours"] for v in rows.values())
-    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
-                              f"({total * workers:.1f} core-hours)"])
-
-
-def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
-    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
-    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
-    score steps/s: the steps J actually simulated, replays excluded)."""
-    space = space_of(preset, task, "d2")
-    t0 = time.time()
-    ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
-    t1 = time.time()
-    designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
-    stats = {}
-    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
-    scored = time.time() - t1
-    played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
-    return steps / (t1 - t0), scored / n_designs, played / scored
-
-
-# The jobs `--rates` times, as the stages mix them: each kind of policy on each task. The ramp's contacts make its
-# steps dearer than the obstacle's; timing the obstacle alone made the quick run's baselines 36 % longer than
-# planned (docs/quick/stage_seconds.json against `--plan`).
-RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
-
-
-def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
-                  out: str | None = None, jobs: int | None = None) -> dict:
-    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
-    RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
-    rate of the score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on
-    how much a policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED)."""
-    import tempfile
-    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
-    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
-    ex = Run(folder, preset, 0, workers).pool()
-    try:
-        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, preset, steps, n_designs, i)
-                for i, (kind, task) in enumerate(todo)]
-        res = [f.result() for f in futs]
-    finally:
-        ex.shutdown(wait=True)
-        if out is None:
-            shutil.rmtree(folder, ignore_errors=True)
-    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
-    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
-            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
-            "score_rate": float(np.mean(played))}
-
-
-def rates_text(r: dict) -> str:
-    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
-                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
-                                           r["played_steps_per_s"]))
-    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
-            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
-            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
-
-
 # ----------------------------------------------------------------------------------------------------------
-# 3. Small tools
-# ----------------------------------------------------------------------------------------------------------
-class BadInput(Exception):
-    """A problem with the command line or the output folder: reported in one line, exit code 2."""
-
-
-def derive_seed(seed: int, *names) -> int:
-    """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
-    results do not depend on the order in which things run."""
-    keys = [zlib.crc32(str(n).encode()) for n in names]
-    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
-
-
-def write_json(path: str, obj) -> None:
-    """Atomic write (tmp + replace): a killed run never leaves half a file."""
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=1)
-    os.replace(tmp, path)
-
-
-def read_json(path: str):
-    with open(path) as fh:
-        return json.load(fh)
-
-
-class Damaged(BadInput):
-    """A file an earlier attempt of this run wrote cannot be read back (truncated, garbage, another format)."""
-
-
-FRESH = "rerun with --fresh to start over"
-READ_ERRORS = (ValueError, KeyError, TypeError, AttributeError, IndexError, EOFError)   # JSON, UTF-8, torch, shape
-
-
-def read_back(path: str, load=read_json, what: str = "JSON file", fix: str = FRESH):
-    """load(path) of a file an earlier attempt wrote; if it is truncated, garbage or of another format, Damaged
-    names the file and what to do (a JSON or torch traceback says neither; torch's would even suggest
-    weights_only=False on a file we cannot trust)."""
-    try:
-        with warnings.catch_warnings():   # torch.load warns on foreign pickles: noise beside our one line
-            warnings.simplefilter("ignore")
-            return load(path)
-    except READ_ERRORS as e:
-        raise Damaged(f"{path} is damaged (not a readable {what}: {type(e).__name__}); {fix}") from None
-
-
-def redo_if_damaged(path: str, load=read_json, what: str = "JSON file", part: str = "redoing its part"):
-    """read_back of a file whose part the run can redo exactly (every number derives from --seed): a damaged one
-    is moved aside to <path>.damaged with a warning and None returned, as for a missing file."""
-    if not os.path.exists(path):
-        return None
-    try:
-        return read_back(path, load, what)
-    except Damaged as e:
-        os.replace(path, path + ".damaged")
-        say(f"warning: {str(e).split(';')[0]}: moved aside to {os.path.basename(path)}.damaged; {part}")
-        return None
-
-
-def ckpt_steps(path: str) -> int:
-    return int(ppo.load_checkpoint(path)["steps"])
-
-
-def stage_json(path: str):
-    return read_json(path)["result"]
-
-
-def score_set(path: str) -> np.ndarray:
-    return np.array(read_json(path)["scores"], dtype=float)
-
-
-def fmt_y(y) -> str:
-    """A score J in a progress line (a failed trial's y is None)."""
-    return "failed" if y is None else f"{y:.2f}"
-
-
-def say(msg: str) -> None:
-    print(f"[run_all {time.strftime('%H:%M:%S')}] {msg}", flush=True)
-
-
-LOADED_S = 5.0   # a unit done this soon after the stage's start (or the previous such unit) was loaded, not run
-
-
-class Progress:
-    """'label i/n elapsed eta' lines for the units of a long stage, at most one every `every` seconds.
-    `parallel` units run at once: when the first finishes, the other parallel - 1 are nearly done too, so the ETA
-    counts them as done (elapsed / done alone overstated a 2-worker stage's first ETA ~2x: 5,640 s for ~2,800).
-    The leading units a resumed stage loads (each done within LOADED_S) do not count: the overnight run's resumed
-    baselines said 'eta 102s' with 7 of 10 policies loaded and ~15 min of training left."""
-
-    def __init__(self, label: str, total: int, every: float = 10.0, parallel: int = 1):
-        self.label, self.total, self.every = label, max(total, 1), every
-        self.parallel = max(1, min(parallel, self.total))
-        self.t0, self.last = time.time(), 0.0
-        self.start, self.loaded = self.t0, 0   # the rate counts the units done after self.t0, the first loaded ones
-
-    def __call__(self, done: int, note: str = "", force: bool = False):
-        now = time.time()
-        if done == self.loaded + 1 and now - self.t0 < LOADED_S:
-            self.t0, self.loaded = now, done
-        if not force and now - self.last < self.every and done < self.total:
-            return
-        self.last = now
-        ran = done - self.loaded
-        eta = f"{(now - self.t0) / (ran + self.parallel - 1) * (self.total - done):6.0f}s" if ran else "     -"
-        say(f"  {self.label} {done}/{self.total}  elapsed {now - self.start:6.0f}s  eta {eta}  {note}")
-
-
-class Throttled:
-    """Passes progress text of ppo.train / ballu.score through at most once every `every` seconds."""
-
-    def __init__(self, prefix: str, every: float = 30.0):
-        self.prefix, self.every, self.last = prefix, every, 0.0
-
-    def __call__(self, text: str):
-        if time.time() - self.last >= self.every:
-            self.last = time.time()
-            say(f"    {self.prefix} {text}")
-
-
-_DASK_CLIENTS: dict = {}
-
-
-PROJECT_MODULES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")   # each imports only earlier ones
-CONNECT_TIMEOUT_S = 5
-
-
-def dask_client(scheduler: str | None, workers: int):
-    """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
-    processes with one thread each (torch keeps one thread per job).
-
-    A cluster started by hand (`dask scheduler`, `dask worker ADDR` anywhere, no PYTHONPATH) gets this checkout's
-    modules from the client (Client.upload_file, to the scheduler too: it unpickles the task graph, which names
-    run_all's functions), and so does every worker that joins later. An unreachable or malformed address is a
-    one-line BadInput after CONNECT_TIMEOUT_S, not distributed's 30 s wait and traceback."""
-    key = (scheduler, workers)
-    if key not in _DASK_CLIENTS:
-        from distributed import Client, LocalCluster
-        if scheduler:
-            try:
-                client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
-            except (OSError, ValueError, TypeError) as e:
-                raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
-                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
-                               f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
-            for name in PROJECT_MODULES:
-                client.upload_file(os.path.join(HERE, name))
-            _DASK_CLIENTS[key] = client
-        else:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-            _DASK_CLIENTS[key] = Client(cluster)
-    return _DASK_CLIENTS[key]
-
-
-def close_dask_clients() -> None:
-    for client in _DASK_CLIENTS.values():
-        cluster = client.cluster
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    _DASK_CLIENTS.clear()
-
-
-def dask_executor(client):
-    """distributed's concurrent.futures executor (pure=False: every submit runs, none is deduplicated). Its
-    shutdown gets the standard `cancel_futures` too (there, wait=False cancels)."""
-    ex = client.get_executor(pure=False)
-    plain = ex.shutdown
-    ex.shutdown = lambda wait=True, cancel_futures=False: plain(wait=wait and not cancel_futures)
-    return ex
-
-
-def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
-    """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
-    a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
-    each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
-    def watch():
-        while os.getppid() == parent_pid:
-            time.sleep(every)
-        os._exit(1)
-    threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
-
-
-def kill_hook(tag: str) -> None:
-    """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
-    if os.environ.get("RUN_ALL_FAIL_AT") == tag:
-        raise RuntimeError(f"simulated kill at {tag}")
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True,
-                             timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE,
-                               capture_output=True, text=True, timeout=10).stdout.strip()
-        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def code_hash() -> str:
-    """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
-    folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
-    h = hashlib.sha256(str(RESULTS_FORMAT).encode())
-    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
-        with open(os.path.join(HERE, name), "rb") as fh:
-            h.update(fh.read())
-    return h.hexdigest()[:16]
-
-
-def trim_log(csv_path: str, steps: int) -> None:
-    """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
-    resumed run's learning curve has no duplicated stretch."""
-    rows = redo_if_damaged(csv_path, read_log_rows, "learning-curve CSV", "its curve restarts here")
-    if rows is None:
-        return
-    tmp = f"{csv_path}.tmp{os.getpid()}"
-    with open(tmp, "w", newline="") as fh:
-        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
-    os.replace(tmp, csv_path)
-
-
-def read_log_rows(path: str) -> list:
-    """A learning-curve CSV of ppo.train: its header and rows, each row's numbers checked."""
-    with open(path) as fh:
-        rows = list(csv.reader(fh))
-    [[float(v) for v in r] for r in rows[1:]]
-    return rows
-
-
-def train_seconds(log_csv: str) -> float:
-    """A policy's training seconds summed over the attempts that made it, from its learning-curve CSV [ours].
-
-    ppo.train's wall_s restarts at each resume, so a stretch ends where wall_s drops; each stretch counts up to
-    its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
-    figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
-    mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
-    rows = read_log_rows(log_csv)
-    col = rows[0].index("wall_s")
-    total, prev = 0.0, 0.0
-    for r in rows[1:]:
-        wall = float(r[col])
-        if wall < prev:   # a resumed attempt's first update
-            total += prev
-        prev = wall
-    return total + prev
-
-
-# ----------------------------------------------------------------------------------------------------------
-# 4. Stages (each a function; each name usable with --only)
+# 3. Stages (each a function; each name usable with --only)
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class Run:
@@ -778,7 +390,7 @@ class Run:
         cluster's, a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs
         its env in its own process (workers=1 inside), so any executor gives the same numbers."""
         if self.executor == "dask":
-            return dask_executor(dask_client(self.scheduler, self.workers))
+            return dask_executor(cluster(self.scheduler, self.workers))
         if self.workers <= 1:
             return ges.SerialExecutor()
         return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
@@ -865,7 +477,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         last[0] = time.time()
         write_json(times_path, times)
         done = [v for k, v in times.items() if k != "0"]   # round 0 is the initialisation
-        eta = f"eta <= {np.mean(done) * (config.max_rounds - r):.0f}s" if done else "eta -"
+        eta = eta_s(sum(done), len(done), config.max_rounds - r)
+        eta = "eta -" if eta is None else f"eta <= {eta:.0f}s"
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
@@ -987,7 +600,7 @@ def tpe_search(spec: SearchSpec) -> dict:
 
     def after(study, trial):
         secs = [t.seconds or 0.0 for t in study.trials]
-        eta = np.mean(secs) * (n - len(secs))
+        eta = eta_s(sum(secs), len(secs), n - len(secs))
         say(f"  tpe {spec.name} trial {len(secs)}/{n} y={fmt_y(trial.y)} best={fmt_y(study.best and study.best.y)} "
             f"eta {eta:.0f}s")
         kill_hook(f"tpe:{spec.name}:trial{trial.index}")
@@ -1016,11 +629,6 @@ def run_searches(run: Run, specs: list) -> dict:
             out[s.name] = f.result()
             prog(i + 1, s.name)
     return out
-
-
-def wins(a: np.ndarray, b: np.ndarray) -> dict:
-    """Head-to-head over the same test designs: % where a > b, % ties (scores are curriculum levels)."""
-    return {"win_pct": float(100 * np.mean(a > b)), "tie_pct": float(100 * np.mean(a == b))}
 
 
 def stage_table2(run: Run) -> dict:
@@ -1183,89 +791,8 @@ def stage_cost(run: Run) -> dict:
             "unit": "core-s"}
 
 
-# --- the probe score against the paper's J (not a stage: a measurement, docs/probe_agreement) ----------------
-PROBE_BAR = {"same_winner_pct": 80.0, "spearman": 0.9}   # the bar for using a cheaper probe score in GES
-
-
-def probe_winners(J: np.ndarray) -> np.ndarray:
-    """Per design (column), the checkpoint (row) GES's probe argmax picks: the highest J, ties -> the lowest
-    index, as ges.ges_round does (facts). Agreement is measured on what decides the territories."""
-    return np.argmax(J, axis=0)
-
-
-def probe_agreement(ckpts: list, task: str = "obstacle", n_designs: int = 20, level_steps=BISECTION,
-                    episodes: int = ballu.SCORE_EPISODES, seed: int = 0, workers: int = 1, jitter: float = 0.0,
-                    progress=say) -> dict:
-    """Does a probe schedule rank like the paper's J? Scores `n_designs` uniform D2 designs with each of the K
-    checkpoints both ways, the full J (`episodes` unit steps) and the probe J (`level_steps`), and returns the
-    share of designs where both pick the same winner (probe_winners' tie rule; the share of designs with a tie
-    is returned too, since ties inflate agreement), Spearman's rank correlation over all K x n (design,
-    checkpoint) pairs (NaN if one way scored every pair alike) and each way's wall time.
-
-    `jitter` > 0 adds a third way, the ceiling of the bar [ours]: the full J itself on designs moved by
-    +-jitter of each axis' range (random signs). No probe score can agree with J better than J agrees with
-    itself a hair's breadth away, so its same-winner share and rank correlation say whether the bar can be met
-    on these checkpoints at all."""
-    from scipy.stats import spearmanr
-    space = ballu.d2(task)   # Table I bounds
-    rng = np.random.default_rng(derive_seed(seed, "probe-agreement", task))
-    theta = space.sample_uniform(rng, n_designs)
-    ways = {"full": (theta, {"episodes": episodes}), "probe": (theta, {"level_steps": tuple(level_steps)})}
-    if jitter > 0:
-        span = np.asarray(space.highs) - np.asarray(space.lows)
-        moved = np.clip(theta + jitter * span * rng.choice([-1.0, 1.0], theta.shape), space.lows, space.highs)
-        ways["jitter"] = (moved, {"episodes": episodes})
-    J = {w: np.zeros((len(ckpts), n_designs)) for w in ways}
-    seconds = {w: 0.0 for w in ways}
-    for k, ckpt in enumerate(ckpts):
-        policy = read_back(ckpt, ppo.load_policy, "ppo.py checkpoint", "give --probe-agreement checkpoints that "
-                           "ppo.py wrote")
-        for w, (th, kw) in ways.items():
-            t0 = time.time()
-            J[w][k] = ballu.score(policy, space.full(th), task, workers=max(1, min(workers, n_designs)), **kw)
-            seconds[w] += time.time() - t0
-            progress(f"probe agreement: checkpoint {k + 1}/{len(ckpts)} {w} J done ({seconds[w]:.0f} s so far)")
-    win = {w: probe_winners(J[w]) for w in ways}
-
-    def agreement(w):   # (same winner %, Spearman) of way w against the full J
-        constant = np.ptp(J["full"]) == 0 or np.ptp(J[w]) == 0
-        rho = float("nan") if constant else float(spearmanr(J["full"].ravel(), J[w].ravel())[0])
-        return float(100 * np.mean(win["full"] == win[w])), rho
-
-    out = {"task": task, "designs": space.full(theta).tolist(), "ckpts": list(ckpts), "episodes": episodes,
-           "level_steps": list(level_steps), "J_full": J["full"].tolist(), "J_probe": J["probe"].tolist(),
-           "tie_pct": {w: float(100 * np.mean((J[w] == J[w].max(axis=0)).sum(axis=0) > 1)) for w in ways},
-           "seconds": seconds}
-    out["same_winner_pct"], out["spearman"] = agreement("probe")
-    if jitter > 0:
-        out.update(jitter=jitter, J_jitter=J["jitter"].tolist(), ceiling=dict(zip(("same_winner_pct", "spearman"),
-                                                                               agreement("jitter"))))
-    return out
-
-
-def probe_agreement_text(r: dict) -> str:
-    """The measurement in a few lines, against PROBE_BAR."""
-    K, n = len(r["ckpts"]), len(r["designs"])
-    ok = r["same_winner_pct"] >= PROBE_BAR["same_winner_pct"] and r["spearman"] >= PROBE_BAR["spearman"]
-    full_s, probe_s = r["seconds"]["full"], r["seconds"]["probe"]
-    return "\n".join([
-        f"probe agreement, {r['task']}: {n} uniform D2 designs x {K} checkpoints; full J = {r['episodes']} unit "
-        f"steps, probe J = level steps {r['level_steps']}",
-        f"  same winner (highest J, ties -> lowest index as GES's probe argmax): {r['same_winner_pct']:.1f} % "
-        f"(bar >= {PROBE_BAR['same_winner_pct']:.0f} %); designs with a tie: full {r['tie_pct']['full']:.1f} %, "
-        f"probe {r['tie_pct']['probe']:.1f} %",
-        f"  Spearman rank correlation over all {K * n} (design, checkpoint) pairs: "
-        + (f"{r['spearman']:.3f}" if np.isfinite(r["spearman"]) else "undefined (one way scored every pair alike)")
-        + f" (bar >= {PROBE_BAR['spearman']})",
-        f"  wall time: full J {full_s:.0f} s, probe J {probe_s:.0f} s ({full_s / max(probe_s, 1e-9):.1f}x faster)",
-        f"  the bar (PROBE_BAR): {'met' if ok else 'NOT met'}"]
-        + ([f"  ceiling: the full J on designs moved by +-{100 * r['jitter']:g} % of each range agrees with the "
-            f"full J on {r['ceiling']['same_winner_pct']:.1f} % of winners, Spearman {r['ceiling']['spearman']:.3f}"]
-           if "ceiling" in r else []))
-
-
 # ----------------------------------------------------------------------------------------------------------
-# 5. Figures
+# 4. Figures
 # ----------------------------------------------------------------------------------------------------------
 def _plt():
     import matplotlib
@@ -1354,8 +881,6 @@ def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) ->
     return np.array(z)
 
 
-GAIT_FEATURES = {"peak_toe_cm": "peak toe height, cm", "step_hz": "step frequency, Hz",
-                 "airborne_pct": "time with both toes up, %"}
 GAIT_DESIGNS = 8   # [ours] common designs on which every specialist's gait is measured (Fig. 5's claim)
 
 
@@ -1468,12 +993,6 @@ def level_of(task: str, score: float) -> int:
     return int(levels[np.argmin(np.abs(ballu.level_score(task, levels) - score))])
 
 
-def read_log(path: str) -> dict:
-    with open(path) as fh:
-        rows = list(csv.DictReader(fh))
-    return {k: np.array([float(r[k]) for r in rows]) for k in ("steps", "episode_return", "mean_level")}
-
-
 def fig_curves(logs: list, path: str, title: str) -> str:
     """Learning curves (episode return, curriculum level vs control steps) of several policies in one figure."""
     plt = _plt()
@@ -1556,107 +1075,8 @@ STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. REPORT.md and results.json: our numbers beside the paper's
+# 5. REPORT.md and results.json: our numbers beside the paper's
 # ----------------------------------------------------------------------------------------------------------
-# --- the paper's numbers (quoted from paper/ges_paper.tex; "None" = the paper gives no number) ---
-# Table I "BALLU morphology parameters": (lower, upper, baseline)
-PAPER_TABLE1 = {"l_f": (0.25, 0.55, 0.45), "l_t": (0.25, 0.55, 0.45), "gcr": (0.72, 0.90, 0.70),
-                "spcf": (0.001, 0.100, 0.002)}
-# Table II "Mean Simulation Performance": baseline design, e2e MLP, e2e MoE, GES (cm / degrees)
-PAPER_TABLE2 = {("obstacle", "d2"): {"design": 14.2, "mlp": 29.4, "moe": 34.0, "ges": 36.9},
-                ("obstacle", "d3"): {"design": 14.2, "mlp": 24.5, "moe": 21.2, "ges": 29.1},
-                ("ramp", "d2"): {"design": 25.1, "mlp": 27.9, "moe": 28.4, "ges": 31.4},
-                ("ramp", "d3"): {"design": 25.1, "mlp": 28.3, "moe": 27.9, "ges": 29.7}}
-# Sec. V-B text: peak scores found by the design search ("GES finds designs that clear a 54 cm obstacle,
-# versus 38 cm for e2e MLP and 52 cm for e2e MoE", ...); the ramp 3D peaks are given only as a gain (~8 %).
-PAPER_PEAK = {("obstacle", "d2"): {"mlp": 38.0, "moe": 52.0, "ges": 54.0},
-              ("obstacle", "d3"): {"mlp": 41.0, "moe": None, "ges": 54.0},
-              ("ramp", "d2"): {"mlp": 32.61, "moe": 32.61, "ges": 36.25},
-              ("ramp", "d3"): {"mlp": None, "moe": None, "ges": None}}
-# Sec. V-B/V-D text: the GES-optimised designs (GCR 0.88, SPCF 0.008 obstacle D2; leg 45.58 cm obstacle D3;
-# leg 31.45 cm ramp D3)
-PAPER_PEAK_DESIGN = {("obstacle", "d2"): "gcr=0.88 spcf=0.008", ("obstacle", "d3"): "l=0.4558",
-                     ("ramp", "d2"): None, ("ramp", "d3"): "l=0.3145"}
-# Sec. V-B text: head-to-head win rates of GES over 1000 test designs (%)
-PAPER_WINS = {("obstacle", "d2"): {"mlp": 94, "moe": 72}, ("obstacle", "d3"): {"mlp": 68, "moe": 76},
-              ("ramp", "d2"): {"mlp": 81, "moe": 78}, ("ramp", "d3"): {"mlp": 75, "moe": 86}}
-# Table III "Impact of initialization strategy" (K = 3, obstacle, D2): mean, min, max in cm
-PAPER_TABLE3 = {"grid": (29.7, 22, 43), "random": (31.5, 24, 45), "fps": (34.5, 22, 52),
-                "fps+lloyd": (35.2, 24, 52)}
-# Fig. 7: no numbers in the text, only "Performance peaks at K = 3 and degrades for larger K"
-PAPER_KSENS_PEAK_K = 3
-# Sec. V-D "Computational Cost": ~100 h per-design BO vs ~63 h GES on the 3D space, a 37 % reduction;
-# Stage 1 for K = 6 took 48 h.
-PAPER_COST = {"bo_h": 100.0, "ges_h": 63.0, "reduction_pct": 37.0, "stage1_h": 48.0}
-
-
-# --- uncertainty (beyond the paper, which gives none): bootstrap over test designs, paired comparisons ---
-N_BOOT = 10_000          # [ours] bootstrap resamples; the CI's Monte Carlo error is ~0.01 of its width
-CI_LEVEL = 0.95
-
-
-def bootstrap_ci(x, seed: int = 0, level: float = CI_LEVEL) -> tuple:
-    """Percentile bootstrap CI of the mean over test designs (each design is one draw of the design space)."""
-    x = np.asarray(x, dtype=float)
-    idx = np.random.default_rng(seed).integers(0, len(x), (N_BOOT, len(x)))
-    means = x[idx].mean(axis=1)
-    return float(np.quantile(means, (1 - level) / 2)), float(np.quantile(means, (1 + level) / 2))
-
-
-def paired_comparison(a, b, seed: int = 0) -> dict:
-    """a vs b on the same test designs: mean difference with its paired-bootstrap CI, the Wilcoxon signed-rank
-    p-value (two-sided; 1.0 when every pair ties), and the win rate of a (ties apart) with its bootstrap CI."""
-    from scipy.stats import wilcoxon
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    d = a - b
-    idx = np.random.default_rng(seed).integers(0, len(d), (N_BOOT, len(d)))
-    q = ((1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2)
-    diff_lo, diff_hi = np.quantile(d[idx].mean(axis=1), q)
-    win_lo, win_hi = np.quantile(100 * (d[idx] > 0).mean(axis=1), q)
-    p = float(wilcoxon(a, b).pvalue) if np.any(d != 0) else 1.0
-    return {"diff": float(d.mean()), "diff_lo": float(diff_lo), "diff_hi": float(diff_hi), "p": p,
-            "win_lo": float(win_lo), "win_hi": float(win_hi), **wins(a, b)}
-
-
-def verdict(cmp: dict, alpha: float = 0.05) -> str:
-    """A claim 'a > b' from a paired comparison: supported (a higher, p < alpha), not supported (a lower,
-    p < alpha) or not resolved."""
-    if cmp["p"] < alpha:
-        return "supported" if cmp["diff"] > 0 else "not supported"
-    return "not resolved"
-
-
-def mean_ci(x, seed: int = 0, fmt: str = "{:.1f}") -> str:
-    """'mean [95 % CI]' over test designs."""
-    lo, hi = bootstrap_ci(x, seed)
-    return f"{fmt.format(float(np.mean(x)))} [{fmt.format(lo)}, {fmt.format(hi)}]"
-
-
-def cell_ci(scores, paper, seed: int = 0) -> str:
-    """'ours [95 % CI] (paper)'."""
-    return f"{mean_ci(scores, seed)} ({'-' if paper is None else f'{paper:.1f}'})"
-
-
-def comparison_cell(cmp: dict, paper_win=None) -> str:
-    """A paired comparison as one table cell: difference [CI], p-value; win rate [CI] (paper's win rate)."""
-    pw = "-" if paper_win is None else f"{paper_win:.0f}"
-    return (f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}; "
-            f"wins {cmp['win_pct']:.0f} % [{cmp['win_lo']:.0f}, {cmp['win_hi']:.0f}] ({pw}), ties {cmp['tie_pct']:.0f} %")
-
-
-def cell(ours, paper, fmt="{:.1f}", paper_fmt=None) -> str:
-    """'ours (paper)'; a missing number is '-'. paper_fmt: the paper's own precision if it differs."""
-    o = "-" if ours is None else fmt.format(ours)
-    p = "-" if paper is None else (paper_fmt or fmt).format(paper)
-    return f"{o} ({p})"
-
-
-def md_table(header: list, rows: list) -> list:
-    """A markdown table as lines: the header, its rule, one line per row, and a blank line."""
-    line = lambda values: "| " + " | ".join(str(v) for v in values) + " |"   # noqa: E731
-    return [line(header), "|" + "---|" * len(header)] + [line(r) for r in rows] + [""]
-
-
 def stage_result(run: Run, name: str):
     """A finished stage's result, None if it has not finished (repair moved a damaged one aside)."""
     path = run.path("stages", f"{name}.json")
@@ -1666,10 +1086,10 @@ def stage_result(run: Run, name: str):
 def report_header(run: Run, manifest: dict) -> list:
     p = run.preset
     return [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
-            "Every cell is **ours (paper)**. Paper numbers are constants in run_all.py quoted from "
+            "Every cell is **ours (paper)**. Paper numbers are constants in report/paper.py quoted from "
             "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
             "budgets below). '-' = not measured yet / not given by the paper.", "",
-            f"- seed {run.seed}; git commit {git_commit()} (results folder created at {manifest['git_commit']}); "
+            f"- seed {run.seed}; git commit {git_commit(HERE)} (results folder created at {manifest['git_commit']}); "
             f"code hash {manifest['code_hash']}",
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
             f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
@@ -1694,245 +1114,6 @@ def score_text(p: Preset) -> str:
     probe = (f"; GES probes scored with level steps {list(p.probe_level_steps)} (ours; paper: the 20-episode J)"
              if p.probe_level_steps else "")
     return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
-
-
-DESIGN_WORDS = ("D2 = (gcr, spcf) with l_f = l_t = 0.45 m; D3 = (gcr, spcf, l) with l = l_f = l_t, the symmetric "
-                "leg length (paper Sec. III-B).")
-
-
-def report_table1(table1: dict) -> list:
-    rows = []
-    for name, (low, high, base) in table1["rows"].items():
-        paper_low, paper_high, paper_base = PAPER_TABLE1[name]
-        rows.append([name, cell(low, paper_low, "{:g}"), cell(high, paper_high, "{:g}"),
-                     cell(base, paper_base, "{:g}")])
-    return ["## Table I: design space and baseline design", ""] + md_table(
-        ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {DESIGN_WORDS}", ""]
-
-
-def report_table2(table2: dict, preset: Preset) -> list:
-    means = []
-    for t in TASKS:
-        for s in SPACES:
-            scores, paper = table2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
-            means.append([t, s.upper(), cell(table2["design"][t], paper["design"])]
-                         + [cell_ci(scores[m]["scores"], paper.get(m)) for m in ("baseline", "mlp", "moe", "ges")])
-    peaks = []
-    for t in TASKS:
-        for s in SPACES:
-            for m in ("mlp", "moe", "ges"):
-                peak = table2["peaks"][f"{t}-{s}-{m}"]
-                design = " ".join(f"{k}={v:.4g}" for k, v in peak["peak_design"].items())
-                paper_design = PAPER_PEAK_DESIGN[(t, s)] if m == "ges" else None
-                long_J = cell(peak["peak_long"], PAPER_PEAK[(t, s)][m]) if "peak_long" in peak else "-"
-                peaks.append([t, s.upper(), METHOD_NAMES[m], f"{peak['peak']:.1f}", long_J, design,
-                              paper_design or "-"])
-    wins_rows = []
-    for t in TASKS:
-        for s in SPACES:
-            cmps = ges_comparisons(table2, t, s)
-            wins_rows.append([t, s.upper()] + [comparison_cell(cmps[m], PAPER_WINS[(t, s)].get(m))
-                                               for m in ("baseline", "mlp", "moe")])
-    return ([f"## Table II: mean score J over {preset.n_test} uniform test designs (cm obstacle, deg ramp)", "",
-             "Cells: ours [95 % bootstrap CI over the test designs] (paper). The paper gives no uncertainty.", ""]
-            + md_table(["task", "space", "baseline design", "baseline policy", "e2e MLP", "e2e MoE", "GES"], means)
-            + ["'baseline design' = the baseline design's own policy at the baseline design (1 design); "
-               "'baseline policy' = that policy on the test designs (not in the paper).", "",
-               f"### Peaks found by TPE ({preset.tpe_trials} trials maximising each method's J)", "",
-               f"Each search maximises the {preset.score_episodes}-episode J; its best design is then scored once "
-               f"more with a longer J of {preset.peak_episodes or '-'} episodes from the same start level (ours: the "
-               f"{preset.score_episodes}-episode J from level 28 cannot exceed "
-               f"{ballu.level_score('obstacle', 28 + preset.score_episodes):.0f} cm, below the paper's 54 cm peaks), "
-               "the column compared with the paper's peak.", ""]
-            + md_table(["task", "space", "method", f"peak J, {preset.score_episodes} episodes",
-                        f"peak J, {preset.peak_episodes or '-'} episodes (paper)", "peak design",
-                        "paper's peak design"], peaks)
-            + [f"Designs: {DESIGN_WORDS}", ""]
-            + ["### Head-to-head: GES against each baseline on the same test designs", "",
-               "Cells: mean difference GES - baseline [95 % paired-bootstrap CI], Wilcoxon signed-rank p; % of "
-               "designs where GES scores higher [95 % CI] (paper's %), % ties.", ""]
-            + md_table(["task", "space", "vs baseline policy", "vs e2e MLP", "vs e2e MoE"], wins_rows))
-
-
-def report_table3(table3: dict, preset: Preset) -> list:
-    rows = []
-    for init, r in table3.items():
-        paper_mean, paper_min, paper_max = PAPER_TABLE3.get(init, (None, None, None))
-        rows.append([init, cell_ci(r["scores"], paper_mean), cell(r["min"], paper_min, "{:.1f}", "{:g}"),
-                     cell(r["max"], paper_max, "{:.1f}", "{:g}"), r["rounds"], f"{r['coverage']:.1%}"])
-    return ([f"## Table III: GES initialisation (K = {preset.K_d2}, obstacle, D2, {preset.n_test} test designs, cm)",
-             ""] + md_table(["init", "mean [95 % CI] (paper)", "min", "max", "GES rounds", "final coverage"], rows))
-
-
-def report_ksens(ksens: dict) -> list:
-    best = max(ksens, key=lambda k: ksens[k]["mean"])
-    rows = [[K, mean_ci(r["scores"]), f"{r['std']:.1f}", f"{r['min']:.1f}", f"{r['max']:.1f}", r["rounds"],
-             f"{r['coverage']:.1%}"] for K, r in ksens.items()]
-    return (["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
-             f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", ""]
-            + md_table(["K", "mean [95 % CI]", "std", "min", "max", "GES rounds", "final coverage"], rows))
-
-
-def report_ges_runs(ges_runs: dict) -> list:
-    return ["## GES stage 1 runs", ""] + md_table(
-        ["run", "rounds", "final coverage"], [[n, r["rounds"], f"{r['coverage']:.1%}"] for n, r in ges_runs.items()])
-
-
-def report_cost(cost: dict) -> list:
-    extrapolated = (f" (per-design BO: {cost['bo_trials_run']} trials measured, extrapolated to {cost['trials']})"
-                    if cost["extrapolated"] else "")
-    unit = cost.get("unit", "s")   # core-s since the fair layout; older results hold wall seconds
-    rows = [["per-design BO", f"{cost['bo_s']:.0f} {unit}", f"{PAPER_COST['bo_h']:.0f} h"],
-            ["GES co-design (warm-start e2e MLP + stage 1 + TPE with router)",
-             f"{cost['ges_s']:.0f} {unit} ({cost.get('ges_warm_start_s', 0):.0f} + {cost['ges_stage1_s']:.0f} + "
-             f"{cost['ges_tpe_s']:.0f})", f"{PAPER_COST['ges_h']:.0f} h (no warm start)"],
-            ["reduction", f"{cost['reduction_pct']:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"],
-            ["best J found: per-design BO / GES", f"{cost['bo_peak']:.1f} / {cost['ges_peak']:.1f}", "-"]]
-    if "bo_trial_s" in cost:
-        bo = np.asarray(cost["bo_trial_s"], float)
-        n, lo, hi = break_even(cost)
-        ges_at_paper = cost["ges_fixed_s"] + PAPER_TPE_TRIALS * cost["ges_per_trial_s"]
-        at_paper = 1 - ges_at_paper / (PAPER_TPE_TRIALS * bo.mean())
-        rows += [["per-design BO, one trial (a PPO training + J)",
-                  f"{bo.mean():.0f} {unit} (sd {bo.std(ddof=1) if len(bo) > 1 else 0:.0f}, {len(bo)} trials)", "-"],
-                 ["GES: fixed cost / one trial (a routed J)",
-                  f"{cost['ges_fixed_s']:.0f} / {cost['ges_per_trial_s']:.0f} {unit}", "-"],
-                 ["trials after which GES costs less (break-even)", f"{n:.1f} [{lo:.1f}, {hi:.1f}]", "-"],
-                 [f"reduction at the paper's {PAPER_TPE_TRIALS} trials (extrapolated from the per-trial costs)",
-                  f"{100 * at_paper:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"]]
-    layout = (["Ours in core-seconds: every job on one core, as many at once as there are workers, each timed "
-               "where it ran, both sides in this one layout; the paper's in wall hours.", ""] if unit == "core-s"
-              else [])
-    return ([f"## Computational cost ({cost['task']}, {cost['space'].upper()}, {cost['trials']} TPE trials, this "
-             f"machine){extrapolated}", ""] + layout + md_table(["", "ours", "paper"], rows))
-
-
-def report_figures(figures: dict) -> list:
-    return (["## Figures", "", f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
-             f"collapse; paper: 'nearly equal weight'): {figures['moe_gate_entropy']:.2f}; GES: 0 (hard).", ""]
-            + [f"- {k}: [{v}]({v})" for k, v in figures["files"].items()] + [""])
-
-
-def ges_comparisons(table2: dict, task: str, sp: str) -> dict:
-    """GES against each baseline method of one Table II cell, paired over the same test designs."""
-    c = table2["cells"][f"{task}-{sp}"]
-    return {m: paired_comparison(c["ges"]["scores"], c[m]["scores"], seed=zlib.crc32(f"{task}{sp}{m}".encode()))
-            for m in ("baseline", "mlp", "moe")}
-
-
-def best_of(results: dict, claimed: str) -> str:
-    """The claim 'setting `claimed` scores highest' from paired comparisons on the same test designs:
-    supported if it beats every other (p < 0.05), not supported if any other beats it, else not resolved."""
-    if claimed not in results:
-        return "not measured"
-    cmps = [paired_comparison(results[claimed]["scores"], r["scores"], seed=i) for i, (k, r) in
-            enumerate(results.items()) if k != claimed]
-    verdicts = [verdict(c) for c in cmps]
-    if verdicts and all(v == "supported" for v in verdicts):
-        return "supported"
-    return "not supported" if "not supported" in verdicts else "not resolved"
-
-
-def gait_verdict(gaits: dict, alpha: float = 0.05) -> str:
-    """Supported if some gait feature differs between specialists at p < alpha / features (Bonferroni)."""
-    ps = [f["p"] for f in gaits["features"].values()]
-    return "supported" if min(ps) < alpha / len(ps) else "not resolved"
-
-
-def gait_evidence(gaits: dict) -> str:
-    return "; ".join(f"{GAIT_FEATURES[k]} " + "/".join(f"{m:.1f}" for m in f["mean"]) + f" (p={f['p']:.2g})"
-                     for k, f in gaits["features"].items()) + (f"; {gaits['K']} specialists x {gaits['designs']} "
-                                                                  "designs, Friedman")
-
-
-def designs_needed(results: dict, claimed: str, power_z: float = 2.8) -> str:
-    """How many test designs a paired test would need to resolve each comparison the run left open, at the
-    measured spread of the paired differences: n = (2.8 sd / |mean|)^2 (two-sided 5 %, 80 % power)."""
-    need = []
-    for k, r in results.items():
-        if k == claimed:
-            continue
-        d = np.asarray(results[claimed]["scores"], float) - np.asarray(r["scores"], float)
-        if verdict(paired_comparison(results[claimed]["scores"], r["scores"])) == "not resolved":
-            need.append(math.inf if d.mean() == 0 else (power_z * d.std(ddof=1) / abs(d.mean())) ** 2)
-    if not need:
-        return "every comparison resolved"
-    n = max(need)
-    return "a verdict needs " + ("more designs than any budget (mean difference 0)" if math.isinf(n)
-                                 else f"~{math.ceil(n)} test designs at the measured spread")
-
-
-def break_even(cost: dict, seed: int = 0) -> tuple:
-    """Trials after which GES co-design (a fixed cost: warm start + stage 1; then a cheap routed J per trial)
-    costs less than per-design BO (a PPO training per trial): n* = fixed / (BO per trial - GES per trial), with a
-    bootstrap interval over the measured BO trials. inf where BO's trial is not dearer."""
-    bo = np.asarray(cost["bo_trial_s"], float)
-    fixed, per = cost["ges_fixed_s"], cost["ges_per_trial_s"]
-    n_star = lambda b: fixed / (b - per) if b > per else math.inf   # noqa: E731
-    boots = np.random.default_rng(seed).choice(bo, (N_BOOT, len(bo))).mean(axis=1)
-    lo, hi = np.quantile([n_star(b) for b in boots], ((1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2),
-                         method="inverted_cdf")   # no interpolation: n* may be inf
-    return n_star(bo.mean()), float(lo), float(hi)
-
-
-def cost_claim(cost: dict) -> list:
-    """The cost claim from the break-even trial count: supported if even its interval's upper end, with the
-    machine's drift on top, lies below the paper's 40 trials; not supported if its lower end lies above."""
-    n, lo, hi = break_even(cost)
-    paper = PAPER_TPE_TRIALS
-    v = ("supported" if hi * (1 + COST_DRIFT_PCT / 100) < paper else
-         "not supported" if lo / (1 + COST_DRIFT_PCT / 100) > paper else "not resolved")
-    return [f"GES co-design costs less compute than per-design BO at the paper's {paper} trials", v,
-            f"break-even after {n:.1f} trials [{lo:.1f}, {hi:.1f}] (BO {len(cost['bo_trial_s'])} trials measured; "
-            f"+-{COST_DRIFT_PCT:.0f} % drift allowed)"]
-
-
-PAPER_TPE_TRIALS = 40   # [facts] the authors' TPE trials per search, the paper's cost comparison
-
-COST_DRIFT_PCT = 20.0   # [ours] this machine's speed drifts +-20 % between runs (developers' guide, measured)
-
-
-def report_claims(results: dict) -> list:
-    """Which of the paper's claims this run supports, from this run's numbers only (paired tests, p < 0.05)."""
-    rows = []
-    t2 = results.get("table2")
-    if t2:
-        for m, name in (("mlp", "e2e MLP"), ("moe", "e2e MoE")):
-            for t in TASKS:
-                for s in SPACES:
-                    cmp = ges_comparisons(t2, t, s)[m]
-                    rows.append([f"GES > {name}, {t} {s.upper()}", verdict(cmp),
-                                 f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
-    fig = results.get("figures")
-    if fig:
-        ent = fig["moe_gate_entropy"]
-        rows.append(["the e2e MoE's gate is near uniform (normalised entropy >= 0.9 on Fig. 4's designs, ours)",
-                     "supported" if ent >= 0.9 else "not supported", f"entropy {ent:.2f}"])
-    gaits = (fig or {}).get("specialist_gaits")
-    if gaits:
-        rows.append(["specialists behave differently (Fig. 5; obstacle D2, ours: gait features)",
-                     gait_verdict(gaits), gait_evidence(gaits)])
-    else:
-        rows.append(["specialists behave differently (Fig. 5)", "not resolved", "no number; see Fig. 5"])
-    if results.get("table3"):
-        rows.append(["FPS + Lloyd is the best initialisation", best_of(results["table3"], "fps+lloyd"),
-                     "paired against every other init; " + designs_needed(results["table3"], "fps+lloyd")])
-    if results.get("ksens"):
-        rows.append([f"K = {PAPER_KSENS_PEAK_K} is the best K", best_of(results["ksens"], str(PAPER_KSENS_PEAK_K)),
-                     "paired against every other K; " + designs_needed(results["ksens"], str(PAPER_KSENS_PEAK_K))])
-    cost = results.get("cost")
-    if cost and "bo_trial_s" in cost:
-        rows.append(cost_claim(cost))
-    elif cost:
-        red = cost["reduction_pct"]   # one timing per side, no CI: only a saving beyond the machine's drift counts
-        rows.append(["GES co-design costs less compute than per-design BO",
-                     "supported" if red > COST_DRIFT_PCT else "not supported" if red < -COST_DRIFT_PCT
-                     else "not resolved", f"reduction {red:.0f} % (one measurement each, no CI; beyond "
-                     f"+-{COST_DRIFT_PCT:.0f} % counts)"])
-    return (["## Which of the paper's claims does this run support?", "",
-             "From this run's numbers only: 'supported' = the claimed difference holds at p < 0.05 (Wilcoxon "
-             "signed-rank, paired over the same test designs), 'not supported' = the opposite holds at p < 0.05, "
-             "'not resolved' = neither.", ""] + md_table(["claim", "verdict", "evidence"], rows))
 
 
 def report(run: Run, manifest: dict) -> str:
@@ -1960,7 +1141,181 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 7. Command line
+# 6. Machinery: seeds, work files, the files a Dask cluster gets, the plan of a preset and the rates it uses
+# ----------------------------------------------------------------------------------------------------------
+def derive_seed(seed: int, *names) -> int:
+    """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
+    results do not depend on the order in which things run."""
+    keys = [zlib.crc32(str(n).encode()) for n in names]
+    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
+
+
+def ckpt_steps(path: str) -> int:
+    return int(ppo.load_checkpoint(path)["steps"])
+
+
+def stage_json(path: str):
+    return read_json(path)["result"]
+
+
+def score_set(path: str) -> np.ndarray:
+    return np.array(read_json(path)["scores"], dtype=float)
+
+
+def fmt_y(y) -> str:
+    """A score J in a progress line (a failed trial's y is None)."""
+    return "failed" if y is None else f"{y:.2f}"
+
+
+# this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
+PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")
+
+
+def cluster(scheduler: str | None, workers: int):
+    """The Dask client of this run (runkit.pool.dask_client), with this checkout's files to upload."""
+    return dask_client(scheduler, workers, [os.path.join(HERE, f) for f in PROJECT_FILES])
+
+
+def kill_hook(tag: str) -> None:
+    """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
+    if os.environ.get("RUN_ALL_FAIL_AT") == tag:
+        raise RuntimeError(f"simulated kill at {tag}")
+
+
+def code_hash() -> str:
+    """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
+    folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
+    h = hashlib.sha256(str(RESULTS_FORMAT).encode())
+    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
+        with open(os.path.join(HERE, name), "rb") as fh:
+            h.update(fh.read())
+    return h.hexdigest()[:16]
+
+
+# --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
+# [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
+# busy, each kind of policy on each task), measured by `python run_all.py --rates` (docs/presets.md).
+TRAIN_RATE, SCORE_RATE = 880.0, 840.0
+# [ours] share of a J's episodes that ballu.score plays (`reuse` replays the rest exactly): the larger of two
+# measurements, since the plan is an upper bound (docs/presets.md). The step counts below stay every episode's.
+SCORE_PLAYED = 0.66
+
+
+def played_share(preset: Preset) -> float:
+    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
+    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
+
+
+# Fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import torch and
+# pybullet), once per pool a stage starts, and the figures stage (docs/presets.md).
+POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
+POOL_START_S, FIGURES_S = 2.0, 40.0
+
+
+def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
+    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing
+    (but per-design BO: its random startup trials `workers` at a time, the TPE trials after them one at a time),
+    scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
+    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
+    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
+    figures stage (FIGURES_S)."""
+    p, episode = preset, ballu.BalluConfig().episode_steps
+    J = p.score_episodes * episode                                            # one design's score J
+    peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
+    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
+
+    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
+        return np.array([sum(K * p.ges_round_steps for K in Ks), 0, sum(K * p.ges_probes * probe_J for K in Ks)]
+                        ) * p.ges_max_rounds
+
+    cells = len(TASKS) * len(SPACES)
+    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
+    work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
+            "ges": ges([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
+            "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J
+                                + cells * 3 * peak_J, 0]),
+            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
+            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
+            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
+    played = played_share(p)
+    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
+    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
+    startup = min(p.cost_trials, p.tpe_startup)
+    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
+    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
+                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / width.get(stage, workers)
+                              + fixed[stage]) / 3600} for stage, w in work.items()}
+
+
+def plan_text(preset: Preset, workers: int = 2) -> str:
+    rows = plan(preset, workers)
+    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
+             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
+             f"{preset.ges_max_rounds}):"]
+    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
+              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
+    total = sum(v["hours"] for v in rows.values())
+    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
+                              f"({total * workers:.1f} core-hours)"])
+
+
+def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
+    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
+    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
+    score steps/s: the steps J actually simulated, replays excluded)."""
+    space = space_of(preset, task, "d2")
+    t0 = time.time()
+    ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
+    t1 = time.time()
+    designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
+    stats = {}
+    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
+    scored = time.time() - t1
+    played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
+    return steps / (t1 - t0), scored / n_designs, played / scored
+
+
+# The jobs `--rates` times, as the stages mix them: each kind of policy on each task (the ramp's contacts make
+# its steps dearer than the obstacle's; docs/presets.md).
+RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
+
+
+def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
+                  out: str | None = None, jobs: int | None = None) -> dict:
+    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
+    RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
+    rate of the score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on
+    how much a policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED)."""
+    import tempfile
+    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
+    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
+    ex = Run(folder, preset, 0, workers).pool()
+    try:
+        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, preset, steps, n_designs, i)
+                for i, (kind, task) in enumerate(todo)]
+        res = [f.result() for f in futs]
+    finally:
+        ex.shutdown(wait=True)
+        if out is None:
+            shutil.rmtree(folder, ignore_errors=True)
+    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
+    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
+            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
+            "score_rate": float(np.mean(played))}
+
+
+def rates_text(r: dict) -> str:
+    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
+                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
+                                           r["played_steps_per_s"]))
+    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
+            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
+            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. Command line: check the arguments and the output folder, run the stages, write the report
 # ----------------------------------------------------------------------------------------------------------
 def parse(argv):
     ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
@@ -1980,42 +1335,7 @@ def parse(argv):
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="Dask scheduler, e.g. tcp://HOST:8786 (default with --executor dask: a local cluster "
                          "of --workers processes)")
-    ap.add_argument("--probe-agreement", default=None, metavar="CKPT,CKPT,...",
-                    help="instead of stages: score --designs uniform D2 designs with each checkpoint by the full J "
-                         "and by the probe schedule; print the same-winner share, rank correlation and wall times")
-    ap.add_argument("--task", default="obstacle", help="with --probe-agreement: obstacle or ramp")
-    ap.add_argument("--designs", type=int, default=20, help="with --probe-agreement: designs (default 20)")
-    ap.add_argument("--level-steps", default=",".join(map(str, BISECTION)),
-                    help=f"with --probe-agreement: the probe schedule (default {','.join(map(str, BISECTION))})")
-    ap.add_argument("--episodes", type=int, default=ballu.SCORE_EPISODES,
-                    help=f"with --probe-agreement: episodes of the full J (default {ballu.SCORE_EPISODES})")
-    ap.add_argument("--jitter", type=float, default=0.0,
-                    help="with --probe-agreement: also score the full J on designs moved by this share of each "
-                         "range (e.g. 0.001), the ceiling any probe score can reach")
     return ap.parse_args(argv)
-
-
-def check_probe_args(args) -> dict:
-    """--probe-agreement's arguments as probe_agreement's keywords; BadInput names what is wrong."""
-    ckpts = [c for c in args.probe_agreement.split(",") if c]
-    missing = [c for c in ckpts if not os.path.isfile(c)]
-    if len(ckpts) < 2 or missing:
-        raise BadInput(f"--probe-agreement needs >= 2 existing checkpoints, comma-separated; got {len(ckpts)}"
-                       + (f", missing: {missing}" if missing else ""))
-    if args.task not in TASKS:
-        raise BadInput(f"--task {args.task} must be one of {TASKS}")
-    if min(args.designs, args.workers, args.episodes) < 1 or args.seed < 0:
-        raise BadInput(f"--designs {args.designs}, --workers {args.workers}, --episodes {args.episodes} must be "
-                       f">= 1 and --seed {args.seed} >= 0")
-    try:
-        steps = tuple(ballu.check_level_steps(tuple(int(s) for s in args.level_steps.split(",")), None).tolist())
-    except ValueError:
-        raise BadInput(f"--level-steps {args.level_steps} must be comma-separated integers in "
-                       f"[1, {ballu.MAX_LEVEL}]") from None
-    if not 0 <= args.jitter < 1:
-        raise BadInput(f"--jitter {args.jitter} must lie in [0, 1) (a share of each design axis' range)")
-    return {"ckpts": ckpts, "task": args.task, "n_designs": args.designs, "level_steps": steps,
-            "episodes": args.episodes, "seed": args.seed, "workers": args.workers, "jitter": args.jitter}
 
 
 def check_args(args) -> tuple:
@@ -2026,11 +1346,6 @@ def check_args(args) -> tuple:
         raise BadInput(f"unknown stage(s) {bad} in --only; known: {','.join(STAGES)}")
     if not only:
         raise BadInput(f"--only {args.only!r} names no stage; known: {','.join(STAGES)}")
-    default = parse([])
-    alone = [f"--{k.replace('_', '-')}" for k in ("task", "designs", "level_steps", "episodes", "jitter")
-             if getattr(args, k) != getattr(default, k)]
-    if alone:
-        raise BadInput(f"{', '.join(alone)} only apply with --probe-agreement")
     if args.seed < 0:
         raise BadInput(f"--seed={args.seed} must be >= 0")
     if args.scheduler and args.executor != "dask":
@@ -2041,31 +1356,8 @@ def check_args(args) -> tuple:
         except ImportError:
             raise BadInput("--executor dask needs the 'distributed' package (pip install distributed)") from None
         if args.scheduler:
-            dask_client(args.scheduler, args.workers)   # connect now: a wrong address fails before anything is written
+            cluster(args.scheduler, args.workers)   # connect now: a wrong address fails before anything is written
     return [s for s in STAGES if s in only]
-
-
-def check_output(out: str, manifest: dict, fresh: bool) -> bool:
-    """Read-only check of the output folder; True if it holds this very run (reuse its finished work).
-    Refuses a non-empty folder that is not ours, and one made by another preset / budgets / seed / code
-    version unless --fresh."""
-    mpath = os.path.join(out, "manifest.json")
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise BadInput(f"--out {out} exists and is not a folder")
-    if not (os.path.isdir(out) and os.listdir(out)):
-        return False
-    if not os.path.exists(mpath):
-        raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
-    if fresh:   # ours (it has a manifest.json), wiped whatever that file holds
-        return False
-    old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
-    keys = ("results_format", "preset", "budgets", "seed", "code_hash")
-    diff = [k for k in keys if old.get(k) != manifest[k]]
-    if diff and not fresh:
-        raise BadInput(f"{out} holds results of a different " + ", ".join(
-            f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
-            for k in diff) + "; rerun with --fresh to start over or choose another --out")
-    return not fresh
 
 
 def stage_done(out: str, name: str) -> bool:
@@ -2113,59 +1405,6 @@ def repair(run: Run) -> None:
             train_baseline(run, *job)
 
 
-def open_output(out: str, manifest: dict, reuse: bool) -> dict:
-    """Start over (wipe our own old folder) or reuse it; returns the folder's manifest."""
-    mpath = os.path.join(out, "manifest.json")
-    if reuse:
-        return read_json(mpath)
-    try:
-        if os.path.isdir(out):
-            shutil.rmtree(out)   # check_output allowed it: empty, or ours and --fresh
-        os.makedirs(out)
-        write_json(mpath, manifest)
-    except OSError as e:
-        shutil.rmtree(out, ignore_errors=True)   # a failed command leaves no empty folder behind
-        raise BadInput(f"cannot write to output folder {out}: {e}") from None
-    return manifest
-
-
-def stage_times(path: str) -> dict:
-    """stage_seconds.json: every attempt's wall seconds per stage (a damaged file is moved aside, counting anew)."""
-    return redo_if_damaged(path, part="counting the stage times from now on") or {}
-
-
-STAGE_CLOCK_S = 60.0   # a stage killed by SIGKILL loses at most this much of its recorded wall time
-
-
-class StageClock:
-    """Adds a stage's wall time to stage_seconds.json every `every` seconds and once more at close(), so an
-    attempt killed by SIGKILL (a session's end), which runs no `finally`, still counts: the overnight run's first
-    attempt, 84 min of its baselines stage, was missing from the file. [ours] A daemon thread ticks."""
-
-    def __init__(self, path: str, name: str, every: float = STAGE_CLOCK_S):
-        self.path, self.name, self.t0 = path, name, time.time()
-        self.base = stage_times(path).get(name, 0.0)
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._tick, args=(every,), daemon=True, name=f"clock_{name}")
-        self.thread.start()
-
-    def _write(self) -> None:
-        times = stage_times(self.path)
-        times[self.name] = self.base + time.time() - self.t0
-        write_json(self.path, times)
-
-    def _tick(self, every: float) -> None:
-        while not self.stop.wait(every):
-            self._write()
-
-    def close(self) -> float:
-        """Stop ticking, write the final time; returns this attempt's seconds."""
-        self.stop.set()
-        self.thread.join()
-        self._write()
-        return time.time() - self.t0
-
-
 def run_stage(run: Run, name: str) -> float:
     """Run one stage unless its result exists; record its wall time (summed over attempts); returns the seconds
     it ran (0 if skipped)."""
@@ -2185,23 +1424,6 @@ def run_stage(run: Run, name: str) -> float:
     return seconds
 
 
-ETA_PRIOR_S = 60.0   # the pace starts at 1 as if this much had run to plan: a stage of seconds says little
-
-
-def run_eta(planned: dict, ran: dict, left: list, spent: dict | None = None) -> str:
-    """The whole run's ETA: plan()'s seconds of the stages left, scaled by the pace so far (the recorded seconds of
-    the stages finished in this call / their planned seconds, shrunk toward 1 by ETA_PRIOR_S), less the `spent`
-    seconds earlier attempts already put into a stage left (a resumed run). Skipped stages count for neither."""
-    spent = spent or {}
-    done_plan = sum(planned.get(s, 0.0) for s in ran)
-    pace = (sum(ran.values()) + ETA_PRIOR_S) / (done_plan + ETA_PRIOR_S)
-    eta = sum(max(0.0, pace * planned.get(s, 0.0) - spent.get(s, 0.0)) for s in left)
-    done = sum(spent.get(s, 0.0) for s in left)
-    return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left"
-            + (f" ({done:.0f}s spent on them already)" if done else "") + ", " +
-            (f"--plan's time x {pace:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
-
-
 def main(argv=None) -> int:
     args = parse(argv)
     preset = PRESETS[args.preset]
@@ -2215,13 +1437,10 @@ def main(argv=None) -> int:
         if args.rates:
             print(rates_text(measure_rates(preset, args.workers)), flush=True)
             return 0
-        if args.probe_agreement is not None:
-            print(probe_agreement_text(probe_agreement(**check_probe_args(args))), flush=True)
-            return 0
         stages = check_args(args)
         manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
                     "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed, "code_hash": code_hash(),
-                    "git_commit": git_commit(), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+                    "git_commit": git_commit(HERE), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
         reuse = check_output(out, manifest, args.fresh)
         check_needs(out, stages, reuse)
         manifest = open_output(out, manifest, reuse)

@@ -160,7 +160,8 @@ AUDIT_CONFIGS = {   # name -> BalluConfig changes
 
 
 def audit_table(episodes: int = 200, workers: int = 2) -> str:
-    """`python ballu.py --audit N`: blow-ups, joint-limit excesses and energy rises of each AUDIT_CONFIGS row."""
+    """`python -m experiments.ballu_capability --audit N`: blow-ups, joint-limit excesses and energy rises of
+    each AUDIT_CONFIGS row."""
     rows = ["| simulator | blow-ups | episodes with a joint > 0.05 rad past its limit | largest excess | "
             "largest energy rise |", "|---|---|---|---|---|"]
     for name, change in AUDIT_CONFIGS.items():
@@ -280,8 +281,8 @@ CAPABILITY_CONFIGS = {"default: no drag": {}, "option: balloon drag 0.4 v^2": {"
 
 def capability_table(designs=("baseline", "paper optimum (gcr 0.88, spcf 0.008)"), seeds=(0, 1, 2),
                      workers: int = 2, progress=print) -> str:
-    """`python ballu.py --capability`: each design under each CAPABILITY_CONFIGS simulator, the median over
-    search seeds (each seed's value in brackets), beside the paper."""
+    """`python -m experiments.ballu_capability --capability`: each design under each CAPABILITY_CONFIGS
+    simulator, the median over search seeds (each seed's value in brackets), beside the paper."""
     rows = ["| design | simulator | toe clearance, m | obstacle cleared, cm | ramp climbed, deg |",
             "|---|---|---|---|---|"]
     t0 = time.time()

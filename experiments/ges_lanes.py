@@ -31,6 +31,7 @@ import ballu
 import ges
 import ppo
 import run_all
+from runkit.stats import paired_comparison
 
 
 def layouts(text: str) -> list:
@@ -122,7 +123,7 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
 
 def paired(a, b) -> str:
     """run_all's paired comparison of a and b on the same designs, as a table cell."""
-    c = run_all.paired_comparison(a, b)
+    c = paired_comparison(a, b)
     return f"{c['diff']:+.1f} [{c['diff_lo']:+.1f}, {c['diff_hi']:+.1f}], p={c['p']:.2g}"
 
 

@@ -13,7 +13,6 @@ across models (`cpu_model`); `--rescore` scores again here what was scored on an
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -26,6 +25,8 @@ import numpy as np
 
 import ballu
 import ppo
+from runkit.logs import read_log
+from runkit.progress import eta_s
 
 # Each setting = changes to ppo.PPOConfig, to ballu.BalluConfig, and/or the training curriculum's "start_level".
 # "before" is the facts' PPO values with the initial mean action 0.5, what the project first trained with.
@@ -221,7 +222,7 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
         results[(s, t, seed)] = run_one(folder, PROTOCOL_SETTINGS[s], t, seed, milestones, designs, episodes,
                                         workers, base_cfg, rescore, sampler)
         if progress:
-            eta = (time.time() - t_start) / (i + 1) * (len(runs) - i - 1)
+            eta = eta_s(time.time() - t_start, i + 1, len(runs) - i - 1)
             last = results[(s, t, seed)][-1]
             progress(f"protocol {i + 1}/{len(runs)}: {s} {t} seed {seed}: J {last['mean_J']:.1f}, training level "
                      f"{last['train_level']:.1f}  (eta {eta / 60:.0f} min)")
@@ -274,10 +275,8 @@ def _protocol_curves(out, settings, tasks, seeds, path):
         for s in settings:
             curves = []
             for seed in seeds:
-                with open(os.path.join(out, s, t, f"seed{seed}", "log.csv")) as f:
-                    rows = list(csv.DictReader(f))
-                curves.append((np.array([float(r["steps"]) for r in rows]),
-                               np.array([float(r["mean_level"]) for r in rows])))
+                log = read_log(os.path.join(out, s, t, f"seed{seed}", "log.csv"))
+                curves.append((log["steps"], log["mean_level"]))
             n = min(len(c[0]) for c in curves)
             ax.plot(curves[0][0][:n], np.mean([c[1][:n] for c in curves], axis=0), label=s)
         ax.set(title=f"{t}: e2e MLP on uniform D2", xlabel="control steps", ylabel="mean training level")

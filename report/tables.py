@@ -1,0 +1,280 @@
+"""The tables and claims of REPORT.md: each cell "ours (paper)", each claim a verdict from paired tests."""
+from __future__ import annotations
+
+import math
+import zlib
+
+import numpy as np
+
+import ballu
+from report.paper import (CELLS, METHOD_NAMES, PAPER_COST, PAPER_KSENS_PEAK_K, PAPER_PEAK, PAPER_PEAK_DESIGN,
+                          PAPER_TABLE1, PAPER_TABLE2, PAPER_TABLE3, PAPER_TPE_TRIALS, PAPER_WINS)
+from runkit.stats import CI_LEVEL, N_BOOT, bootstrap_ci, paired_comparison, verdict
+
+# [ours] the gait features Fig. 5's claim is measured by, in the report's words
+GAIT_FEATURES = {"peak_toe_cm": "peak toe height, cm", "step_hz": "step frequency, Hz",
+                 "airborne_pct": "time with both toes up, %"}
+
+
+def mean_ci(x, seed: int = 0, fmt: str = "{:.1f}") -> str:
+    """'mean [95 % CI]' over test designs."""
+    lo, hi = bootstrap_ci(x, seed)
+    return f"{fmt.format(float(np.mean(x)))} [{fmt.format(lo)}, {fmt.format(hi)}]"
+
+
+def cell_ci(scores, paper, seed: int = 0) -> str:
+    """'ours [95 % CI] (paper)'."""
+    return f"{mean_ci(scores, seed)} ({'-' if paper is None else f'{paper:.1f}'})"
+
+
+def comparison_cell(cmp: dict, paper_win=None) -> str:
+    """A paired comparison as one table cell: difference [CI], p-value; win rate [CI] (paper's win rate)."""
+    pw = "-" if paper_win is None else f"{paper_win:.0f}"
+    return (f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}; "
+            f"wins {cmp['win_pct']:.0f} % [{cmp['win_lo']:.0f}, {cmp['win_hi']:.0f}] ({pw}), ties {cmp['tie_pct']:.0f} %")
+
+
+def cell(ours, paper, fmt="{:.1f}", paper_fmt=None) -> str:
+    """'ours (paper)'; a missing number is '-'. paper_fmt: the paper's own precision if it differs."""
+    o = "-" if ours is None else fmt.format(ours)
+    p = "-" if paper is None else (paper_fmt or fmt).format(paper)
+    return f"{o} ({p})"
+
+
+def md_table(header: list, rows: list) -> list:
+    """A markdown table as lines: the header, its rule, one line per row, and a blank line."""
+    line = lambda values: "| " + " | ".join(str(v) for v in values) + " |"   # noqa: E731
+    return [line(header), "|" + "---|" * len(header)] + [line(r) for r in rows] + [""]
+
+
+DESIGN_WORDS = ("D2 = (gcr, spcf) with l_f = l_t = 0.45 m; D3 = (gcr, spcf, l) with l = l_f = l_t, the symmetric "
+                "leg length (paper Sec. III-B).")
+
+
+def report_table1(table1: dict) -> list:
+    rows = []
+    for name, (low, high, base) in table1["rows"].items():
+        paper_low, paper_high, paper_base = PAPER_TABLE1[name]
+        rows.append([name, cell(low, paper_low, "{:g}"), cell(high, paper_high, "{:g}"),
+                     cell(base, paper_base, "{:g}")])
+    return ["## Table I: design space and baseline design", ""] + md_table(
+        ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {DESIGN_WORDS}", ""]
+
+
+def report_table2(table2: dict, preset) -> list:
+    means = []
+    for t, s in CELLS:
+        scores, paper = table2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
+        means.append([t, s.upper(), cell(table2["design"][t], paper["design"])]
+                     + [cell_ci(scores[m]["scores"], paper.get(m)) for m in ("baseline", "mlp", "moe", "ges")])
+    peaks = []
+    for t, s in CELLS:
+        for m in ("mlp", "moe", "ges"):
+            peak = table2["peaks"][f"{t}-{s}-{m}"]
+            design = " ".join(f"{k}={v:.4g}" for k, v in peak["peak_design"].items())
+            paper_design = PAPER_PEAK_DESIGN[(t, s)] if m == "ges" else None
+            long_J = cell(peak["peak_long"], PAPER_PEAK[(t, s)][m]) if "peak_long" in peak else "-"
+            peaks.append([t, s.upper(), METHOD_NAMES[m], f"{peak['peak']:.1f}", long_J, design,
+                          paper_design or "-"])
+    wins_rows = []
+    for t, s in CELLS:
+        cmps = ges_comparisons(table2, t, s)
+        wins_rows.append([t, s.upper()] + [comparison_cell(cmps[m], PAPER_WINS[(t, s)].get(m))
+                                           for m in ("baseline", "mlp", "moe")])
+    return ([f"## Table II: mean score J over {preset.n_test} uniform test designs (cm obstacle, deg ramp)", "",
+             "Cells: ours [95 % bootstrap CI over the test designs] (paper). The paper gives no uncertainty.", ""]
+            + md_table(["task", "space", "baseline design", "baseline policy", "e2e MLP", "e2e MoE", "GES"], means)
+            + ["'baseline design' = the baseline design's own policy at the baseline design (1 design); "
+               "'baseline policy' = that policy on the test designs (not in the paper).", "",
+               f"### Peaks found by TPE ({preset.tpe_trials} trials maximising each method's J)", "",
+               f"Each search maximises the {preset.score_episodes}-episode J; its best design is then scored once "
+               f"more with a longer J of {preset.peak_episodes or '-'} episodes from the same start level (ours: the "
+               f"{preset.score_episodes}-episode J from level 28 cannot exceed "
+               f"{ballu.level_score('obstacle', 28 + preset.score_episodes):.0f} cm, below the paper's 54 cm peaks), "
+               "the column compared with the paper's peak.", ""]
+            + md_table(["task", "space", "method", f"peak J, {preset.score_episodes} episodes",
+                        f"peak J, {preset.peak_episodes or '-'} episodes (paper)", "peak design",
+                        "paper's peak design"], peaks)
+            + [f"Designs: {DESIGN_WORDS}", ""]
+            + ["### Head-to-head: GES against each baseline on the same test designs", "",
+               "Cells: mean difference GES - baseline [95 % paired-bootstrap CI], Wilcoxon signed-rank p; % of "
+               "designs where GES scores higher [95 % CI] (paper's %), % ties.", ""]
+            + md_table(["task", "space", "vs baseline policy", "vs e2e MLP", "vs e2e MoE"], wins_rows))
+
+
+def report_table3(table3: dict, preset) -> list:
+    rows = []
+    for init, r in table3.items():
+        paper_mean, paper_min, paper_max = PAPER_TABLE3.get(init, (None, None, None))
+        rows.append([init, cell_ci(r["scores"], paper_mean), cell(r["min"], paper_min, "{:.1f}", "{:g}"),
+                     cell(r["max"], paper_max, "{:.1f}", "{:g}"), r["rounds"], f"{r['coverage']:.1%}"])
+    return ([f"## Table III: GES initialisation (K = {preset.K_d2}, obstacle, D2, {preset.n_test} test designs, cm)",
+             ""] + md_table(["init", "mean [95 % CI] (paper)", "min", "max", "GES rounds", "final coverage"], rows))
+
+
+def report_ksens(ksens: dict) -> list:
+    best = max(ksens, key=lambda k: ksens[k]["mean"])
+    rows = [[K, mean_ci(r["scores"]), f"{r['std']:.1f}", f"{r['min']:.1f}", f"{r['max']:.1f}", r["rounds"],
+             f"{r['coverage']:.1%}"] for K, r in ksens.items()]
+    return (["## K sensitivity (Fig. 7; obstacle, D2, cm)", "",
+             f"Paper: no numbers, performance peaks at K = {PAPER_KSENS_PEAK_K}. Ours peaks at K = {best}.", ""]
+            + md_table(["K", "mean [95 % CI]", "std", "min", "max", "GES rounds", "final coverage"], rows))
+
+
+def report_ges_runs(ges_runs: dict) -> list:
+    return ["## GES stage 1 runs", ""] + md_table(
+        ["run", "rounds", "final coverage"], [[n, r["rounds"], f"{r['coverage']:.1%}"] for n, r in ges_runs.items()])
+
+
+def report_cost(cost: dict) -> list:
+    extrapolated = (f" (per-design BO: {cost['bo_trials_run']} trials measured, extrapolated to {cost['trials']})"
+                    if cost["extrapolated"] else "")
+    unit = cost.get("unit", "s")   # core-s since the fair layout; older results hold wall seconds
+    rows = [["per-design BO", f"{cost['bo_s']:.0f} {unit}", f"{PAPER_COST['bo_h']:.0f} h"],
+            ["GES co-design (warm-start e2e MLP + stage 1 + TPE with router)",
+             f"{cost['ges_s']:.0f} {unit} ({cost.get('ges_warm_start_s', 0):.0f} + {cost['ges_stage1_s']:.0f} + "
+             f"{cost['ges_tpe_s']:.0f})", f"{PAPER_COST['ges_h']:.0f} h (no warm start)"],
+            ["reduction", f"{cost['reduction_pct']:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"],
+            ["best J found: per-design BO / GES", f"{cost['bo_peak']:.1f} / {cost['ges_peak']:.1f}", "-"]]
+    if "bo_trial_s" in cost:
+        bo = np.asarray(cost["bo_trial_s"], float)
+        n, lo, hi = break_even(cost)
+        ges_at_paper = cost["ges_fixed_s"] + PAPER_TPE_TRIALS * cost["ges_per_trial_s"]
+        at_paper = 1 - ges_at_paper / (PAPER_TPE_TRIALS * bo.mean())
+        rows += [["per-design BO, one trial (a PPO training + J)",
+                  f"{bo.mean():.0f} {unit} (sd {bo.std(ddof=1) if len(bo) > 1 else 0:.0f}, {len(bo)} trials)", "-"],
+                 ["GES: fixed cost / one trial (a routed J)",
+                  f"{cost['ges_fixed_s']:.0f} / {cost['ges_per_trial_s']:.0f} {unit}", "-"],
+                 ["trials after which GES costs less (break-even)", f"{n:.1f} [{lo:.1f}, {hi:.1f}]", "-"],
+                 [f"reduction at the paper's {PAPER_TPE_TRIALS} trials (extrapolated from the per-trial costs)",
+                  f"{100 * at_paper:.0f} %", f"{PAPER_COST['reduction_pct']:.0f} %"]]
+    layout = (["Ours in core-seconds: every job on one core, as many at once as there are workers, each timed "
+               "where it ran, both sides in this one layout; the paper's in wall hours.", ""] if unit == "core-s"
+              else [])
+    return ([f"## Computational cost ({cost['task']}, {cost['space'].upper()}, {cost['trials']} TPE trials, this "
+             f"machine){extrapolated}", ""] + layout + md_table(["", "ours", "paper"], rows))
+
+
+def report_figures(figures: dict) -> list:
+    return (["## Figures", "", f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
+             f"collapse; paper: 'nearly equal weight'): {figures['moe_gate_entropy']:.2f}; GES: 0 (hard).", ""]
+            + [f"- {k}: [{v}]({v})" for k, v in figures["files"].items()] + [""])
+
+
+def ges_comparisons(table2: dict, task: str, sp: str) -> dict:
+    """GES against each baseline method of one Table II cell, paired over the same test designs."""
+    c = table2["cells"][f"{task}-{sp}"]
+    return {m: paired_comparison(c["ges"]["scores"], c[m]["scores"], seed=zlib.crc32(f"{task}{sp}{m}".encode()))
+            for m in ("baseline", "mlp", "moe")}
+
+
+def best_of(results: dict, claimed: str) -> str:
+    """The claim 'setting `claimed` scores highest' from paired comparisons on the same test designs:
+    supported if it beats every other (p < 0.05), not supported if any other beats it, else not resolved."""
+    if claimed not in results:
+        return "not measured"
+    cmps = [paired_comparison(results[claimed]["scores"], r["scores"], seed=i) for i, (k, r) in
+            enumerate(results.items()) if k != claimed]
+    verdicts = [verdict(c) for c in cmps]
+    if verdicts and all(v == "supported" for v in verdicts):
+        return "supported"
+    return "not supported" if "not supported" in verdicts else "not resolved"
+
+
+def gait_verdict(gaits: dict, alpha: float = 0.05) -> str:
+    """Supported if some gait feature differs between specialists at p < alpha / features (Bonferroni)."""
+    ps = [f["p"] for f in gaits["features"].values()]
+    return "supported" if min(ps) < alpha / len(ps) else "not resolved"
+
+
+def gait_evidence(gaits: dict) -> str:
+    return "; ".join(f"{GAIT_FEATURES[k]} " + "/".join(f"{m:.1f}" for m in f["mean"]) + f" (p={f['p']:.2g})"
+                     for k, f in gaits["features"].items()) + (f"; {gaits['K']} specialists x {gaits['designs']} "
+                                                                  "designs, Friedman")
+
+
+def designs_needed(results: dict, claimed: str, power_z: float = 2.8) -> str:
+    """How many test designs a paired test would need to resolve each comparison the run left open, at the
+    measured spread of the paired differences: n = (2.8 sd / |mean|)^2 (two-sided 5 %, 80 % power)."""
+    need = []
+    for k, r in results.items():
+        if k == claimed:
+            continue
+        d = np.asarray(results[claimed]["scores"], float) - np.asarray(r["scores"], float)
+        if verdict(paired_comparison(results[claimed]["scores"], r["scores"])) == "not resolved":
+            need.append(math.inf if d.mean() == 0 else (power_z * d.std(ddof=1) / abs(d.mean())) ** 2)
+    if not need:
+        return "every comparison resolved"
+    n = max(need)
+    return "a verdict needs " + ("more designs than any budget (mean difference 0)" if math.isinf(n)
+                                 else f"~{math.ceil(n)} test designs at the measured spread")
+
+
+def break_even(cost: dict, seed: int = 0) -> tuple:
+    """Trials after which GES co-design (a fixed cost: warm start + stage 1; then a cheap routed J per trial)
+    costs less than per-design BO (a PPO training per trial): n* = fixed / (BO per trial - GES per trial), with a
+    bootstrap interval over the measured BO trials. inf where BO's trial is not dearer."""
+    bo = np.asarray(cost["bo_trial_s"], float)
+    fixed, per = cost["ges_fixed_s"], cost["ges_per_trial_s"]
+    n_star = lambda b: fixed / (b - per) if b > per else math.inf   # noqa: E731
+    boots = np.random.default_rng(seed).choice(bo, (N_BOOT, len(bo))).mean(axis=1)
+    lo, hi = np.quantile([n_star(b) for b in boots], ((1 - CI_LEVEL) / 2, (1 + CI_LEVEL) / 2),
+                         method="inverted_cdf")   # no interpolation: n* may be inf
+    return n_star(bo.mean()), float(lo), float(hi)
+
+
+def cost_claim(cost: dict) -> list:
+    """The cost claim from the break-even trial count: supported if even its interval's upper end, with the
+    machine's drift on top, lies below the paper's 40 trials; not supported if its lower end lies above."""
+    n, lo, hi = break_even(cost)
+    paper = PAPER_TPE_TRIALS
+    v = ("supported" if hi * (1 + COST_DRIFT_PCT / 100) < paper else
+         "not supported" if lo / (1 + COST_DRIFT_PCT / 100) > paper else "not resolved")
+    return [f"GES co-design costs less compute than per-design BO at the paper's {paper} trials", v,
+            f"break-even after {n:.1f} trials [{lo:.1f}, {hi:.1f}] (BO {len(cost['bo_trial_s'])} trials measured; "
+            f"+-{COST_DRIFT_PCT:.0f} % drift allowed)"]
+
+
+COST_DRIFT_PCT = 20.0   # [ours] this machine's speed drifts +-20 % between runs (developers' guide, measured)
+
+
+def report_claims(results: dict) -> list:
+    """Which of the paper's claims this run supports, from this run's numbers only (paired tests, p < 0.05)."""
+    rows = []
+    t2 = results.get("table2")
+    if t2:
+        for m, name in (("mlp", "e2e MLP"), ("moe", "e2e MoE")):
+            for t, s in CELLS:
+                cmp = ges_comparisons(t2, t, s)[m]
+                rows.append([f"GES > {name}, {t} {s.upper()}", verdict(cmp),
+                             f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
+    fig = results.get("figures")
+    if fig:
+        ent = fig["moe_gate_entropy"]
+        rows.append(["the e2e MoE's gate is near uniform (normalised entropy >= 0.9 on Fig. 4's designs, ours)",
+                     "supported" if ent >= 0.9 else "not supported", f"entropy {ent:.2f}"])
+    gaits = (fig or {}).get("specialist_gaits")
+    if gaits:
+        rows.append(["specialists behave differently (Fig. 5; obstacle D2, ours: gait features)",
+                     gait_verdict(gaits), gait_evidence(gaits)])
+    else:
+        rows.append(["specialists behave differently (Fig. 5)", "not resolved", "no number; see Fig. 5"])
+    if results.get("table3"):
+        rows.append(["FPS + Lloyd is the best initialisation", best_of(results["table3"], "fps+lloyd"),
+                     "paired against every other init; " + designs_needed(results["table3"], "fps+lloyd")])
+    if results.get("ksens"):
+        rows.append([f"K = {PAPER_KSENS_PEAK_K} is the best K", best_of(results["ksens"], str(PAPER_KSENS_PEAK_K)),
+                     "paired against every other K; " + designs_needed(results["ksens"], str(PAPER_KSENS_PEAK_K))])
+    cost = results.get("cost")
+    if cost and "bo_trial_s" in cost:
+        rows.append(cost_claim(cost))
+    elif cost:
+        red = cost["reduction_pct"]   # one timing per side, no CI: only a saving beyond the machine's drift counts
+        rows.append(["GES co-design costs less compute than per-design BO",
+                     "supported" if red > COST_DRIFT_PCT else "not supported" if red < -COST_DRIFT_PCT
+                     else "not resolved", f"reduction {red:.0f} % (one measurement each, no CI; beyond "
+                     f"+-{COST_DRIFT_PCT:.0f} % counts)"])
+    return (["## Which of the paper's claims does this run support?", "",
+             "From this run's numbers only: 'supported' = the claimed difference holds at p < 0.05 (Wilcoxon "
+             "signed-rank, paired over the same test designs), 'not supported' = the opposite holds at p < 0.05, "
+             "'not resolved' = neither.", ""] + md_table(["claim", "verdict", "evidence"], rows))

@@ -1,0 +1,59 @@
+"""A run's output folder: refuse one that holds another run, start over or reuse it, and name the code."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+
+from runkit.files import FRESH, BadInput, read_back, read_json, write_json
+
+
+def git_commit(where: str) -> str:
+    """The short commit of the checkout at `where`, '+dirty' if tracked files changed, 'unknown' without git."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=where, capture_output=True, text=True,
+                             timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def check_output(out: str, manifest: dict, fresh: bool) -> bool:
+    """Read-only check of the output folder; True if it holds this very run (reuse its finished work).
+    Refuses a non-empty folder that is not ours, and one made by another preset / budgets / seed / code
+    version unless --fresh."""
+    mpath = os.path.join(out, "manifest.json")
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise BadInput(f"--out {out} exists and is not a folder")
+    if not (os.path.isdir(out) and os.listdir(out)):
+        return False
+    if not os.path.exists(mpath):
+        raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
+    if fresh:   # ours (it has a manifest.json), wiped whatever that file holds
+        return False
+    old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
+    keys = ("results_format", "preset", "budgets", "seed", "code_hash")
+    diff = [k for k in keys if old.get(k) != manifest[k]]
+    if diff and not fresh:
+        raise BadInput(f"{out} holds results of a different " + ", ".join(
+            f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
+            for k in diff) + "; rerun with --fresh to start over or choose another --out")
+    return not fresh
+
+
+def open_output(out: str, manifest: dict, reuse: bool) -> dict:
+    """Start over (wipe our own old folder) or reuse it; returns the folder's manifest."""
+    mpath = os.path.join(out, "manifest.json")
+    if reuse:
+        return read_json(mpath)
+    try:
+        if os.path.isdir(out):
+            shutil.rmtree(out)   # check_output allowed it: empty, or ours and --fresh
+        os.makedirs(out)
+        write_json(mpath, manifest)
+    except OSError as e:
+        shutil.rmtree(out, ignore_errors=True)   # a failed command leaves no empty folder behind
+        raise BadInput(f"cannot write to output folder {out}: {e}") from None
+    return manifest

@@ -1,0 +1,49 @@
+"""The one reader of a training log (ppo.TrainLog's CSV, as one array per column), and what a run reads from it."""
+from __future__ import annotations
+
+import csv
+import os
+
+import numpy as np
+
+from runkit.files import redo_if_damaged
+
+
+def read_log(path: str) -> dict:
+    """A learning-curve CSV (a header, then rows of numbers) as {column: array}; a row that is short or not
+    numbers raises ValueError, so a caller can tell a damaged file from a good one."""
+    with open(path, newline="") as fh:
+        header, *rows = list(csv.reader(fh))
+    if any(len(r) != len(header) for r in rows):
+        raise ValueError(f"{path}: a row's length differs from the header's")
+    values = np.array([[float(v) for v in r] for r in rows], dtype=float).reshape(len(rows), len(header))
+    return dict(zip(header, values.T))
+
+
+def trim_log(csv_path: str, steps: int) -> None:
+    """Drop log rows past a checkpoint's step count (written by a run killed after its last checkpoint), so a
+    resumed run's learning curve has no duplicated stretch."""
+    if redo_if_damaged(csv_path, read_log, "learning-curve CSV", "its curve restarts here") is None:
+        return
+    with open(csv_path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    tmp = f"{csv_path}.tmp{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
+    os.replace(tmp, csv_path)
+
+
+def train_seconds(log_csv: str) -> float:
+    """A policy's training seconds summed over the attempts that made it, from its learning-curve CSV [ours].
+
+    ppo.train's wall_s restarts at each resume, so a stretch ends where wall_s drops; each stretch counts up to
+    its last kept row. Updates lost at a kill (past the last checkpoint, dropped by trim_log) do not count: the
+    figure is an uninterrupted training's, which the cost comparison needs (a run spanning sessions is killed
+    mid-training; timing only the last attempt counted ~0 s for a policy that the kill had left complete)."""
+    total, prev = 0.0, 0.0
+    for wall in read_log(log_csv)["wall_s"]:
+        wall = float(wall)
+        if wall < prev:   # a resumed attempt's first update
+            total += prev
+        prev = wall
+    return total + prev

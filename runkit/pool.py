@@ -1,0 +1,84 @@
+"""Where a run's independent jobs run: a Dask cluster (local, or started by hand and sent this checkout's files)
+or a local process pool whose workers end with the run that started them."""
+from __future__ import annotations
+
+import glob
+import os
+import tempfile
+import threading
+import time
+import zipfile
+
+from runkit.files import BadInput
+
+CONNECT_TIMEOUT_S = 5
+_DASK_CLIENTS: dict = {}
+
+
+def dask_client(scheduler: str | None, workers: int, files=()):
+    """A Dask client, made once per process: connected to `scheduler`, or to a local cluster of `workers`
+    processes with one thread each (torch keeps one thread per job).
+
+    A cluster started by hand (`dask scheduler`, `dask worker ADDR` anywhere, no PYTHONPATH) gets `files` (.py
+    modules and package folders, in import order) from the client (Client.upload_file, to the scheduler too: it
+    unpickles the task graph, which names the modules' functions), and so does every worker that joins later.
+    An unreachable or malformed address is a one-line BadInput after CONNECT_TIMEOUT_S, not distributed's 30 s
+    wait and traceback."""
+    key = (scheduler, workers)
+    if key not in _DASK_CLIENTS:
+        from distributed import Client, LocalCluster
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+            except (OSError, ValueError, TypeError) as e:
+                raise BadInput(f"--scheduler {scheduler}: no Dask scheduler reachable there ("
+                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}); give the address that "
+                               f"`dask scheduler` prints, e.g. tcp://HOST:8786") from None
+            for path in files:
+                with tempfile.TemporaryDirectory() as tmp:
+                    client.upload_file(package_zip(path, tmp) if os.path.isdir(path) else path)
+            _DASK_CLIENTS[key] = client
+        else:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            _DASK_CLIENTS[key] = Client(cluster)
+    return _DASK_CLIENTS[key]
+
+
+def package_zip(package: str, folder: str) -> str:
+    """The package folder `package` as folder/NAME.zip: Client.upload_file puts a zip on the workers' sys.path,
+    while it would import a lone .py of a package as a top-level module."""
+    name = os.path.basename(os.path.normpath(package))
+    path = os.path.join(folder, f"{name}.zip")
+    with zipfile.ZipFile(path, "w") as z:
+        for f in sorted(glob.glob(os.path.join(package, "*.py"))):
+            z.write(f, os.path.join(name, os.path.basename(f)))
+    return path
+
+
+def close_dask_clients() -> None:
+    for client in _DASK_CLIENTS.values():
+        cluster = client.cluster
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    _DASK_CLIENTS.clear()
+
+
+def dask_executor(client):
+    """distributed's concurrent.futures executor (pure=False: every submit runs, none is deduplicated). Its
+    shutdown gets the standard `cancel_futures` too (there, wait=False cancels)."""
+    ex = client.get_executor(pure=False)
+    plain = ex.shutdown
+    ex.shutdown = lambda wait=True, cancel_futures=False: plain(wait=wait and not cancel_futures)
+    return ex
+
+
+def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
+    """Pool-worker initializer: end this worker when the run that started it is gone. A killed run_all (kill -9,
+    a session's end) otherwise leaves its workers to finish their in-flight training or score set, orphaned,
+    each on a core for up to an hour. [ours] A daemon thread polls the parent's pid once a second."""
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(every)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
