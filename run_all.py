@@ -143,7 +143,7 @@ class TrainSpecialist:
 
     def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
         log = ckpt_out + ".csv"
-        for f in (ckpt_out, log):
+        for f in (ckpt_out, ppo.best_path(ckpt_out), log):
             if os.path.exists(f):
                 os.remove(f)
         cfg = ppo_config(self.preset)
@@ -193,8 +193,8 @@ class ScoreSpecialist:
     trace: dict | None = None   # see score_policy (in-process callers only)
 
     def __call__(self, k, ckpt, designs):
-        return score_policy(load_ges_ckpt(ckpt), self.space.full(designs), self.task, self.preset, self.workers,
-                            f"{self.label} specialist {k}" if self.label else "", self.probe, self.trace)
+        return score_policy(load_ges_ckpt(ckpt, self.preset), self.space.full(designs), self.task, self.preset,
+                            self.workers, f"{self.label} specialist {k}" if self.label else "", self.probe, self.trace)
 
 
 @dataclass
@@ -220,7 +220,7 @@ def ges_J(run_dir: str, task: str, space: ballu.DesignSpace, preset: Preset, wor
     Gaussian is densest there, and that specialist plays it (the paper's J, never the probe schedule)."""
     res = load_ges(run_dir)
     for c in res.ckpt:   # each specialist read back once here: TPE would count a damaged one as failed trials
-        load_ges_ckpt(c)
+        load_ges_ckpt(c, preset)
     return ges.routed_evaluator(res, ScoreSpecialist(task, space, preset, workers, label, trace=trace))
 
 
@@ -235,21 +235,23 @@ def load_ges(run_dir: str) -> ges.GESResult:
                      ges_fix(run_dir))
 
 
-def load_ges_ckpt(ckpt: str):
-    """A GES specialist's policy (ckpt inside <run_dir>/ckpt/)."""
-    return read_back(ckpt, ppo.load_policy, "ppo.py checkpoint", ges_fix(os.path.dirname(os.path.dirname(ckpt))))
+def load_ges_ckpt(ckpt: str, preset: Preset):
+    """A GES specialist's policy (ckpt inside <run_dir>/ckpt/: its last round's), by the preset's policy_rule."""
+    return read_back(ppo.scored_path(ckpt, preset.policy_rule), ppo.load_policy, "ppo.py checkpoint",
+                     ges_fix(os.path.dirname(os.path.dirname(ckpt))))
 
 
-def ges_specialist(run_dir: str, theta):
+def ges_specialist(run_dir: str, theta, preset: Preset):
     """The policy of the specialist the router (eq. 10) picks for one design theta (the space's coordinates)."""
     res = load_ges(run_dir)
-    return load_ges_ckpt(res.ckpt[int(res.route(theta)[0])])
+    return load_ges_ckpt(res.ckpt[int(res.route(theta)[0])], preset)
 
 
 def load_policy(run: Run, method: str, task: str, sp: str):
     """The policy of a single-policy method ('baseline' = the baseline design's own policy, 'mlp', 'moe')."""
     name = f"baseline-{task}" if method == "baseline" else f"{method}-{task}-{sp}"
-    return read_back(run.path("policies", name, "policy.pt"), ppo.load_policy, "ppo.py checkpoint")
+    return read_back(ppo.scored_path(run.path("policies", name, "policy.pt"), run.preset.policy_rule),
+                     ppo.load_policy, "ppo.py checkpoint")
 
 
 def method_J(run: Run, method: str, task: str, sp: str, label: str = "", trace: dict | None = None):
@@ -304,6 +306,9 @@ class Preset:
     # caps at 48 cm, below the paper's 54 cm peaks (54 needs >= 26 episodes: docs/facts.md); 30 reach 58. Labelled
     # as such in the report; Table II, the head-to-head and every test design keep the 20-episode J. None: no rescore
     peak_episodes: int | None = None
+    # [facts] the policy a method is scored with, and GES warm-starts from: "best" = the checkpoint of the best
+    # mean training level (the authors score model_best.pt; ppo.scored_path), "last" = the last one [an option]
+    policy_rule: str = "best"
 
 
 # [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
@@ -482,7 +487,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
-    warm = policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt" if p.ges_warm_start else ""
+    warm = ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule) if p.ges_warm_start else ""
     res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm),
                       ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
@@ -726,7 +731,8 @@ class PerDesignBO:
         ckpt = train_policy(folder, "mlp", self.task, ballu.FixedDesign(full[0]), self.run.preset.ppo_steps,
                             self.run.preset, derive_seed(self.run.seed, "bo", name), 1, f"bo {name}")
         t0 = time.time()
-        y = PolicyJ(ppo.load_policy(ckpt), self.space, self.task, self.run.preset)(theta)
+        y = PolicyJ(ppo.load_policy(ppo.scored_path(ckpt, self.run.preset.policy_rule)), self.space, self.task,
+                    self.run.preset)(theta)
         write_json(os.path.join(folder, "seconds.json"),
                    {"train_s": train_seconds(os.path.join(folder, "log.csv")), "score_s": time.time() - t0})
         return y
@@ -904,7 +910,7 @@ def specialist_gaits(run: Run, task: str = "obstacle", sp: str = "d2", level: in
     from scipy.stats import friedmanchisquare
     space = space_of(run.preset, task, sp)
     designs = space.full(distinct_designs(space, GAIT_DESIGNS, derive_seed(run.seed, "gaits")))
-    experts = [load_ges_ckpt(c) for c in load_ges(run.path("ges", run.main_ges(task, sp))).ckpt]
+    experts = [load_ges_ckpt(c, run.preset) for c in load_ges(run.path("ges", run.main_ges(task, sp))).ckpt]
     dt = ballu.BalluConfig().control_dt
     feats = [[gait_features(toe_heights(e, d[None], task, level), dt) for d in designs] for e in experts]
     out = {"K": len(experts), "designs": len(designs), "features": {}}
@@ -923,7 +929,7 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
     space = space_of(run.preset, "obstacle", "d2")
     peak = t2["peaks"]["obstacle-d2-ges"]["peak_design"]
     full = space.full([peak[n] for n in space.names])
-    experts = [load_ges_ckpt(c) for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
+    experts = [load_ges_ckpt(c, run.preset) for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
     fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     dt = ballu.BalluConfig().control_dt
     for k, expert in enumerate(experts):
@@ -1045,7 +1051,7 @@ def stage_figures(run: Run) -> dict:
         s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
         pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
         theta = [pk["peak_design"][n] for n in space.names]
-        policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta)
+        policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta, run.preset)
         figs[f"fig1-{t}"] = ballu.motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
                                                level_of(t, pk["peak"]), space.full(theta)[0])
     cdir = os.path.join(fdir, "curves")
@@ -1270,7 +1276,8 @@ def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_
     t1 = time.time()
     designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
     stats = {}
-    score_policy(ppo.load_policy(ckpt), space.full(designs), task, preset, 1, stats=stats)
+    score_policy(ppo.load_policy(ppo.scored_path(ckpt, preset.policy_rule)), space.full(designs), task, preset, 1,
+                 stats=stats)
     scored = time.time() - t1
     played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
     return steps / (t1 - t0), scored / n_designs, played / scored

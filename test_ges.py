@@ -2154,12 +2154,13 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
     np.testing.assert_array_equal(ges.route(res.space.to_unit(theta), res.mu_unit, res.sigma_unit), ks)
     pick = np.concatenate([np.flatnonzero(ks == k)[:1] for k in np.unique(ks)])[:3]   # one design per specialist
     J = run_all.ges_J(run_dir, "obstacle", space, preset)(theta[pick])
-    alone = [ballu.score(ppo.load_policy(res.ckpt[ks[i]]), space.full(theta[i]), "obstacle",
+    best = [ppo.scored_path(c) for c in res.ckpt]   # the preset's rule: each specialist's best policy
+    alone = [ballu.score(ppo.load_policy(best[ks[i]]), space.full(theta[i]), "obstacle",
                          episodes=preset.score_episodes, start_level=preset.score_start_level)[0] for i in pick]
     np.testing.assert_array_equal(J, alone)
     obs = np.random.default_rng(2).normal(size=(5, ballu.OBS_DIM)).astype(np.float32)
-    np.testing.assert_array_equal(run_all.ges_specialist(run_dir, theta[pick[0]])(obs),   # Figs. 1 and 5's pick
-                                  ppo.load_policy(res.ckpt[ks[pick[0]]])(obs))
+    np.testing.assert_array_equal(run_all.ges_specialist(run_dir, theta[pick[0]], preset)(obs),   # Figs. 1, 5
+                                  ppo.load_policy(best[ks[pick[0]]])(obs))
 
 
 def test_runkit_uncertainty_against_independent_references():

@@ -100,7 +100,8 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
     K = preset.K_d2 if sp == "d2" else preset.K_d3
     result = ges.load_result(os.path.join(run_dir, "ges", f"{task}-{sp}-K{K}-fps-lloyd"))
     p = replace(preset, ppo_envs=lanes, ppo_rollout=rollout)
-    mlp = "" if variant == "s" else os.path.join(run_dir, "policies", f"mlp-{task}-{sp}", "policy.pt")
+    mlp = "" if variant == "s" else ppo.scored_path(os.path.join(run_dir, "policies", f"mlp-{task}-{sp}", "policy.pt"),
+                                                    preset.policy_rule)
     rounds = result.rounds if rounds is None else rounds
     t0 = time.time()
     with ProcessPoolExecutor(2) as ex:
@@ -112,8 +113,8 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
     designs = run_all.Run(run_dir, preset, 0, 1).test_designs(task, sp)
     routed, J = result.route(designs), np.empty(len(designs))
     for k in np.unique(routed):
-        J[routed == k] = run_all.score_policy(ppo.load_policy(ckpts[k]), space.full(designs[routed == k]), task,
-                                              preset, 2)
+        J[routed == k] = run_all.score_policy(ppo.load_policy(ppo.scored_path(ckpts[k], preset.policy_rule)),
+                                              space.full(designs[routed == k]), task, preset, 2)
     res = {"layout": [lanes, rollout], "uniform": variant == "u", "scratch": variant == "s", "seed": seed,
            "rounds": rounds, "round_steps": preset.ges_round_steps, "J": J.tolist(), "routed": routed.tolist(),
            "level_move": level_moves(folder, K, rounds), "train_s": train_s}
