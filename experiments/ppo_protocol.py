@@ -145,7 +145,7 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
         train_s = time.time() - t0
         last = os.path.join(folder, f"policy_{m}.pt")
         os.replace(ckpt, last)   # one copy of each checkpoint in the folder
-        best_file, best = _keep_best(folder, ckpt, m, out)
+        best_file, best = _keep_best(folder, ckpt, m, ppo.load_checkpoint(last)["steps"], out)
         J_last, score_s = score(last)
         J, best_s = (J_last, 0.0) if best_file == os.path.basename(last) else score(os.path.join(folder, best_file))
         level = float(np.mean(ppo.load_checkpoint(last)["levels"].numpy()))
@@ -159,9 +159,10 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
     return out
 
 
-def _keep_best(folder, ckpt, m, earlier):
-    """After training to milestone m: the file of the best policy so far (policy_<m>.pt if it is the last one,
-    else best_<its steps>.pt, moved there from the running policy_best.pt) and its {best_steps, best_level}.
+def _keep_best(folder, ckpt, m, m_steps, earlier):
+    """After training to milestone m (its checkpoint policy_<m>.pt holds m_steps >= m: whole updates): the file of
+    the best policy so far (policy_<m>.pt if it is that one, else best_<its steps>.pt, moved there from the
+    running policy_best.pt) and its {best_steps, best_level}.
     No policy_best.pt means no new best since the previous milestone, whose best file stands."""
     running = ppo.best_path(ckpt)
     if not os.path.exists(running):
@@ -170,7 +171,7 @@ def _keep_best(folder, ckpt, m, earlier):
                                                                    "best_level": prev.get("best_level", math.nan)}
     state = ppo.load_checkpoint(running)
     best = {"best_steps": int(state["steps"]), "best_level": float(state["extra"]["best"]["level"])}
-    name = f"policy_{m}.pt" if best["best_steps"] == m else f"best_{best['best_steps']}.pt"
+    name = f"policy_{m}.pt" if best["best_steps"] == m_steps else f"best_{best['best_steps']}.pt"
     if name == f"policy_{m}.pt":
         os.remove(running)   # the same policy as the milestone's checkpoint
     else:
