@@ -18,15 +18,13 @@ Read top to bottom, the paper's experiments section in order:
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve
-  4. figures
+  4. figures (helpers that need no run: report/figures.py)
   5. REPORT.md and results.json from the stages' results: the header (budgets, seed, commit) and wall times
      here; the paper's numbers and every table with each cell as "ours (paper)" in report/
   6. machinery: derived seeds, Dask, a kill hook for the resume test, --plan's arithmetic and --rates
   7. the command line
-Machinery that knows nothing of BALLU or GES (progress lines and the one ETA formula, atomic JSON and damaged
-files, the training log, the output folder, the stage clock, Dask and the process pool, the report's
-statistics) lives in runkit/.
-
+Machinery that knows nothing of BALLU or GES (progress and the one ETA formula, atomic JSON and damaged files,
+the training log, the output folder, the stage clock, Dask and the process pool, statistics) lives in runkit/.
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
 
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
@@ -63,13 +61,14 @@ import ballu
 import ges
 import ppo
 import tpe
-from report.paper import METHOD_NAMES, PAPER_KSENS_PEAK_K, PAPER_TABLE2
+from report.paper import METHOD_NAMES, PAPER_TABLE2
+from report.figures import _plt, fig_curves, fig_ksens, gait_features, level_of, toe_heights
 from report.tables import (GAIT_FEATURES, md_table, report_claims, report_cost, report_figures, report_ges_runs,
                            report_ksens, report_table1, report_table2, report_table3)
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_output, git_commit, open_output
-from runkit.logs import read_log, train_seconds, trim_log
+from runkit.logs import train_seconds, trim_log
 from runkit.pool import close_dask_clients, dask_client, dask_executor, exit_with_parent
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
 from runkit.stats import wins
@@ -279,18 +278,18 @@ class Preset:
     n_test: int                 # held-out uniform test designs per task/space (paper: 1000)
     tpe_trials: int             # TPE trials per design search (facts: 40)
     tpe_startup: int            # random trials before TPE proposes
-    K_d2: int                   # specialists in D2 (paper: 3)
-    K_d3: int                   # specialists in D3 (paper: 6)
     ges_max_rounds: int         # hard stop of GES (facts: 20)
-    ges_target_coverage: float  # stop at this MC coverage (paper: 0.95)
     ges_probes: int             # F probes per round (facts: 100)
     ges_probe_pool: int         # uniform points the probes are picked from (facts: 2000)
     ges_init_designs: int       # designs seeding each territory (facts: 50)
     ges_n_mc: int               # MC coverage points (paper: 10^4)
     ges_fps_pool: int           # FPS / Lloyd pool (facts: 10^4)
     ksens_K: tuple              # K values of Fig. 7 (obstacle, D2)
-    table3_inits: tuple         # initialisations of Table III (obstacle, D2, K = K_d2)
     cost_trials: int            # per-design BO trials actually run (extrapolated to tpe_trials if fewer)
+    K_d2: int = 3               # specialists in D2 [paper]
+    K_d3: int = 6               # specialists in D3 [paper]
+    ges_target_coverage: float = 0.95   # stop at this MC coverage [paper]
+    table3_inits: tuple = ("grid", "random", "fps", "fps+lloyd")   # Table III's initialisations (obstacle, D2)
     cost_task: str = "obstacle"  # the paper measured cost on the 3D space
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
@@ -322,10 +321,9 @@ BISECTION = (16, 8, 4, 2, 1, 1, 1)
 # schedule of 2 levels (exercises probe_level_steps). Each score set stores every episode's final pelvis x, so the
 # equality tests compare trajectories.
 SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollout=16, score_episodes=1,
-               n_test=3, tpe_trials=3, tpe_startup=2, K_d2=3, K_d3=6, ges_max_rounds=2, ges_target_coverage=0.95,
-               ges_probes=2, ges_probe_pool=50, ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3),
-               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=2, score_start_level=2,
-               probe_level_steps=(2,), peak_episodes=2)
+               n_test=3, tpe_trials=3, tpe_startup=2, ges_max_rounds=2, ges_probes=2, ges_probe_pool=50,
+               ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3), cost_trials=2,
+               score_start_level=2, probe_level_steps=(2,), peak_episodes=2)
 
 # quick: every table and figure in <= 2 h on 2 cores (`--plan`, with a 15 % margin): 380k PPO steps per policy;
 # specialists warm-start from their cell's e2e MLP (ges_warm_start, ours) for <= 3 rounds of 10k steps with F = 5;
@@ -333,30 +331,25 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 # ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init (`python ges.py --sweep`). What each
 # stage buys, in hours and centimetres: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
-               score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, K_d2=3, K_d3=6, ges_max_rounds=3,
-               ges_target_coverage=0.95, ges_probes=5, ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000,
-               ges_fps_pool=10_000, ksens_K=(1, 3),
-               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=3, ges_warm_start=True,
-               peak_episodes=30)
+               score_episodes=20, n_test=20, tpe_trials=6, tpe_startup=3, ges_max_rounds=3, ges_probes=5,
+               ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 3),
+               cost_trials=3, ges_warm_start=True, peak_episodes=30)
 
 # overnight: one night on 2 cores (`--plan`: 10.3 h with every GES run at its round cap): 1 M PPO steps per
 # policy (the PPO protocol's milestone); GES rounds of 100k steps with F = 10, to 95 % coverage or 6 rounds (facts:
 # 20); Fig. 7 at K = 1-6; 50 test designs; the paper's 40 TPE trials. The numbers behind each: docs/presets.md.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
-                   score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=6,
-                   ges_target_coverage=0.95, ges_probes=10, ges_probe_pool=2000, ges_init_designs=2,
-                   ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
-                   table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=4, ges_warm_start=True,
-                   peak_episodes=30)
+                   score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, ges_max_rounds=6, ges_probes=10,
+                   ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000,
+                   ksens_K=(1, 2, 3, 4, 5, 6), cost_trials=4, ges_warm_start=True, peak_episodes=30)
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
 # PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For a cluster or a big
 # machine: `--plan` gives ~800 core-hours (~17 days on 2 cores).
 PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_envs=64, ppo_rollout=64,
-               score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, K_d2=3, K_d3=6, ges_max_rounds=20,
-               ges_target_coverage=0.95, ges_probes=100, ges_probe_pool=2000, ges_init_designs=50,
-               ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 2, 3, 4, 5, 6),
-               table3_inits=("grid", "random", "fps", "fps+lloyd"), cost_trials=40, peak_episodes=30)
+               score_episodes=20, n_test=1000, tpe_trials=40, tpe_startup=10, ges_max_rounds=20, ges_probes=100,
+               ges_probe_pool=2000, ges_init_designs=50, ges_n_mc=10_000, ges_fps_pool=10_000,
+               ksens_K=(1, 2, 3, 4, 5, 6), cost_trials=40, peak_episodes=30)
 
 PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 
@@ -487,7 +480,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
 
-    warm = ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule) if p.ges_warm_start else ""
+    warm = (ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule)
+            if p.ges_warm_start else "")
     res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm),
                       ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
@@ -800,13 +794,6 @@ def stage_cost(run: Run) -> dict:
 # ----------------------------------------------------------------------------------------------------------
 # 4. Figures
 # ----------------------------------------------------------------------------------------------------------
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def fig_distributions(run: Run, t2: dict, path: str) -> str:
     """Fig. 3: score distribution per method on the test designs, per task and space; paper means as red x."""
     plt = _plt()
@@ -871,35 +858,7 @@ def fig_experts(run: Run, path: str) -> tuple:
     return path, ent, gate.tolist(), ks.tolist()
 
 
-def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) -> np.ndarray:
-    """Left/right toe z over one episode (steps, 2): a 1-lane BalluEnv, toe tips from the env's own state. The
-    time limit is one step longer than the episode, so the last sample is not taken after an automatic reset."""
-    steps = ballu.BalluConfig().episode_steps
-    env = ballu.BalluEnv(1, ballu.BalluConfig(task=task, episode_steps=steps + 1), curriculum=False)
-    try:
-        obs, _ = env.reset(seed=0, options={"designs": design_full, "levels": level})
-        z = []
-        for _ in range(steps):
-            obs, *_ = env.step(policy(obs))
-            z.append(env._read_state()[4][0, :, 2])
-    finally:
-        env.close()
-    return np.array(z)
-
-
 GAIT_DESIGNS = 8   # [ours] common designs on which every specialist's gait is measured (Fig. 5's claim)
-
-
-def gait_features(z: np.ndarray, dt: float) -> dict:
-    """What a toe trajectory (steps, 2) says of a gait [ours]: the highest the lower toe gets (cm), the dominant
-    frequency of the mean toe height (Hz, from its spectrum without the mean), and the share of control steps
-    with both toes more than 2 cm up (%)."""
-    low = z.min(axis=1)
-    mean = z.mean(axis=1) - z.mean()
-    freqs = np.fft.rfftfreq(len(mean), dt)
-    spectrum = np.abs(np.fft.rfft(mean))
-    return {"peak_toe_cm": float(100 * low.max()), "step_hz": float(freqs[1:][np.argmax(spectrum[1:])]),
-            "airborne_pct": float(100 * np.mean(low > 0.02))}
 
 
 def specialist_gaits(run: Run, task: str = "obstacle", sp: str = "d2", level: int = 30) -> dict:
@@ -950,23 +909,6 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
     return path
 
 
-def fig_ksens(ks: dict, path: str) -> str:
-    """Fig. 7: GES mean score (+- std over test designs) against K."""
-    plt = _plt()
-    K = sorted(int(k) for k in ks)
-    m, sd = [ks[str(k)]["mean"] for k in K], [ks[str(k)]["std"] for k in K]
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    ax.errorbar(K, m, yerr=sd, fmt="o-", capsize=3, label="ours (mean +- std over test designs)")
-    ax.axvline(PAPER_KSENS_PEAK_K, color="r", ls="--", lw=1, label=f"paper: peak at K={PAPER_KSENS_PEAK_K}")
-    ax.set(xlabel="K (specialists)", ylabel="GES mean J [cm]", title="Fig. 7: K sensitivity (obstacle, D2)",
-           xticks=sorted(set(K) | {PAPER_KSENS_PEAK_K}))   # K is a count: integer ticks only
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
 def fig_sensitivity(run: Run, t2: dict, path: str) -> str:
     """Fig. 8: the GES score over D2 for both tasks, interpolated between the test designs (dots)."""
     plt = _plt()
@@ -989,35 +931,6 @@ def fig_sensitivity(run: Run, t2: dict, path: str) -> str:
     fig.suptitle("Fig. 8: design sensitivity of GES performance")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def level_of(task: str, score: float) -> int:
-    """Invert ballu.level_score: the curriculum level a score J stands for (the nearest one)."""
-    levels = np.arange(ballu.MAX_LEVEL + 1)
-    return int(levels[np.argmin(np.abs(ballu.level_score(task, levels) - score))])
-
-
-def fig_curves(logs: list, path: str, title: str) -> str:
-    """Learning curves (episode return, curriculum level vs control steps) of several policies in one figure."""
-    plt = _plt()
-    fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
-    for label, csv_paths in logs:
-        parts = [redo_if_damaged(c, read_log, "learning-curve CSV", "its curve is left out") for c in csv_paths
-                 if os.path.exists(c) and os.path.getsize(c) > 0]
-        parts = [p for p in parts if p is not None and len(p["steps"])]
-        if not parts:
-            continue
-        d = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        ax[0].plot(d["steps"], d["episode_return"], label=label)
-        ax[1].plot(d["steps"], d["mean_level"], label=label)
-    ax[0].set(xlabel="control steps", ylabel="episode return (last 100)")
-    ax[1].set(xlabel="control steps", ylabel="mean curriculum level")
-    ax[1].legend(fontsize=7, loc="best")
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
 
