@@ -167,8 +167,8 @@ def _keep_best(folder, ckpt, m, m_steps, earlier):
     running = ppo.best_path(ckpt)
     if not os.path.exists(running):
         prev = earlier[-1]   # (a result written before best policies were kept: its last policy)
-        return prev.get("best_file", f"policy_{prev['steps']}.pt"), {"best_steps": prev.get("best_steps", prev["steps"]),
-                                                                   "best_level": prev.get("best_level", math.nan)}
+        return (prev.get("best_file", f"policy_{prev['steps']}.pt"),
+                {"best_steps": prev.get("best_steps", prev["steps"]), "best_level": prev.get("best_level", math.nan)})
     state = ppo.load_checkpoint(running)
     best = {"best_steps": int(state["steps"]), "best_level": float(state["extra"]["best"]["level"])}
     name = f"policy_{m}.pt" if best["best_steps"] == m_steps else f"best_{best['best_steps']}.pt"
