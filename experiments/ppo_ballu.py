@@ -29,14 +29,18 @@ def design_sampler(text: str):
         return ballu.FixedDesign(NAMED_DESIGNS[text])
     if text == "d2":
         return ballu.UniformDesign(ballu.d2())
+    return ballu.FixedDesign(parse_design(text, "baseline, d2c, d2 or "))
+
+
+def parse_design(text: str, others: str = "") -> np.ndarray:
+    """--design l_f,l_t,gcr,spcf as a checked design (4,); a ValueError naming what is wrong otherwise."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
     if len(values) != 4:
-        raise ValueError(f"--design {text!r} must be baseline, d2c, d2 or four numbers l_f,l_t,gcr,spcf")
-    ballu.check_design(values, what="--design")
-    return ballu.FixedDesign(values)
+        raise ValueError(f"--design {text!r} must be {others}four numbers l_f,l_t,gcr,spcf")
+    return ballu.check_design(values, what="--design")[0]
 
 
 def start_levels(text: str):

@@ -24,6 +24,7 @@ import numpy as np
 
 import ballu
 import ppo
+from experiments.ppo_ballu import parse_design
 
 NEAR, ZONE, JUMP = 0.15, 0.30, 0.03   # m: "at the box", the zone in front of it, a jump's least toe rise
 
@@ -95,9 +96,9 @@ def main(argv=None):
     ap.add_argument("--strip", metavar="PNG", help="film the lowest level above a passed one that does not pass")
     args = ap.parse_args(argv)
     try:
-        design = ballu.check_design([float(v) for v in args.design.split(",")], what="--design")[0]
+        design = parse_design(args.design)
     except ValueError as e:
-        ap.error(f"--design {args.design!r}: {e}")
+        ap.error(str(e))
     try:
         rows = diagnose(args.policy, design, args.levels)
     except (OSError, ValueError) as e:

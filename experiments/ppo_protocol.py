@@ -25,6 +25,7 @@ import numpy as np
 
 import ballu
 import ppo
+from experiments.ppo_ballu import parse_design
 from runkit.logs import read_log
 from runkit.progress import eta_s
 
@@ -145,10 +146,11 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
         train_s = time.time() - t0
         last = os.path.join(folder, f"policy_{m}.pt")
         os.replace(ckpt, last)   # one copy of each checkpoint in the folder
-        best_file, best = _keep_best(folder, ckpt, m, ppo.load_checkpoint(last)["steps"], out)
+        state = ppo.load_checkpoint(last)
+        best_file, best = _keep_best(folder, ckpt, m, state["steps"], out)
         J_last, score_s = score(last)
         J, best_s = (J_last, 0.0) if best_file == os.path.basename(last) else score(os.path.join(folder, best_file))
-        level = float(np.mean(ppo.load_checkpoint(last)["levels"].numpy()))
+        level = float(np.mean(state["levels"].numpy()))
         res = {"steps": m, "J": J.tolist(), "mean_J": float(J.mean()), "train_level": level,
                "J_last": J_last.tolist(), "mean_J_last": float(J_last.mean()), "best_file": best_file, **best,
                "train_s": train_s, "score_s": score_s + best_s, "resumed": bool(summary.get("resumed")),
@@ -326,9 +328,9 @@ def main(argv=None):
     design = None
     if args.design is not None:
         try:
-            design = ballu.check_design([float(v) for v in args.design.split(",")], what="--design")[0].tolist()
+            design = parse_design(args.design).tolist()
         except ValueError as e:
-            ap.error(f"--design {args.design!r}: four numbers l_f,l_t,gcr,spcf in the design space ({e})")
+            ap.error(str(e))
     print(protocol(args.out, settings, tasks, seeds, milestones, workers=args.workers, rescore=args.rescore,
                    table=args.table, design=design))
 
