@@ -132,13 +132,14 @@ class TrainSpecialist:
     """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
 
     Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
-    and step count carry over) and trains to (r + 1) * round_steps control steps. A repeated (interrupted)
-    round first deletes its partial output, so it is identical to an uninterrupted one."""
+    and step count carry over) and trains to first_round_steps + r * round_steps control steps. A repeated
+    (interrupted) round first deletes its partial output, so it is identical to an uninterrupted one."""
     task: str
     space: ballu.DesignSpace
     round_steps: int
     preset: Preset
     warm_ckpt: str = ""   # Preset.ges_warm_start: round 0 starts from this policy (the cell's e2e MLP)
+    first_round_steps: int | None = None   # round 0's steps (None: round_steps); Preset.ges_first_round_steps
 
     def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
         log = ckpt_out + ".csv"
@@ -149,7 +150,8 @@ class TrainSpecialist:
         base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
-            ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + (round + 1) * self.round_steps,
+            first = self.round_steps if self.first_round_steps is None else self.first_round_steps
+            ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + first + round * self.round_steps,
                       ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed,
                       start_level=start_levels(self.task, self.preset), log_csv=log, progress=None)
         finally:
@@ -271,7 +273,7 @@ class Preset:
     a GES specialist trains `ges_round_steps` per round, cumulative (round + 1) * ges_round_steps."""
     name: str
     ppo_steps: int              # control steps per policy (the lead tunes this one)
-    ges_round_steps: int        # control steps per GES specialist per round
+    ges_round_steps: int        # control steps per GES specialist per round (after the first)
     ppo_envs: int               # PPO lanes per policy (PPOConfig.num_envs)
     ppo_rollout: int            # PPO steps per lane and update (PPOConfig.num_steps)
     score_episodes: int         # episodes of the curriculum score J (paper/facts: 20)
@@ -308,6 +310,14 @@ class Preset:
     # [facts] the policy a method is scored with, and GES warm-starts from: "best" = the checkpoint of the best
     # mean training level (the authors score model_best.pt; ppo.scored_path), "last" = the last one [an option]
     policy_rule: str = "best"
+    # [facts] round 0's steps per specialist (None: ges_round_steps): the authors' first GES round trains 1,600
+    # updates, each later one 500 (~3.2x); a run that reaches its coverage after one round keeps round 0's steps
+    ges_first_round_steps: int | None = None
+
+    def ges_steps(self, rounds: int) -> int:
+        """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted)."""
+        first = self.ges_round_steps if self.ges_first_round_steps is None else self.ges_first_round_steps
+        return first + (rounds - 1) * self.ges_round_steps if rounds > 0 else 0
 
 
 # [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
@@ -482,7 +492,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
 
     warm = (ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule)
             if p.ges_warm_start else "")
-    res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm),
+    res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm, p.ges_first_round_steps),
                       ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
     return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
@@ -1015,8 +1025,10 @@ def report_header(run: Run, manifest: dict) -> list:
             + {"task": "at uniform levels up to the score's start level on the ramp, at level 0 on the obstacle "
                        "(ours, the PPO protocol)",
                "spread": "at uniform levels up to the score's start level (ours, the PPO protocol)",
-               "zero": "at level 0"}[p.ppo_start] + f"); GES {p.ges_round_steps:,} steps per "
-            f"specialist per round, <= {p.ges_max_rounds} rounds, "
+               "zero": "at level 0"}[p.ppo_start] + "); GES "
+            + (f"{p.ges_first_round_steps:,} steps per specialist in round 0 (facts: the authors' first round is "
+               "3.2x the later ones), then " if p.ges_first_round_steps is not None else "")
+            + f"{p.ges_round_steps:,} steps per specialist per round, <= {p.ges_max_rounds} rounds, "
             + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
                if p.ges_warm_start else "") +
             f"F = {p.ges_probes} probes of {p.ges_probe_pool}, {p.ges_init_designs} seed designs per territory "
@@ -1145,8 +1157,8 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
     probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
 
     def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
-        return np.array([sum(K * p.ges_round_steps for K in Ks), 0, sum(K * p.ges_probes * probe_J for K in Ks)]
-                        ) * p.ges_max_rounds
+        return np.array([sum(K * p.ges_steps(p.ges_max_rounds) for K in Ks), 0,
+                         sum(K * p.ges_probes * probe_J for K in Ks) * p.ges_max_rounds])
 
     cells = len(TASKS) * len(SPACES)
     other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges

@@ -2554,6 +2554,23 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
     assert "total" in capsys.readouterr().out
 
 
+@pytest.mark.slow
+def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
+    """Preset.ges_first_round_steps [facts: the authors' first GES round is 3.2x the later ones]: round 0 trains
+    to the first round's steps, round 1 adds one round's steps to that; --plan counts the same."""
+    p = replace(run_all.SMOKE, ges_first_round_steps=192, ges_round_steps=64)
+    space = run_all.space_of(p, "obstacle", "d2")
+    box = ges.Box.of(space)
+    train = run_all.TrainSpecialist("obstacle", space, p.ges_round_steps, p, "", p.ges_first_round_steps)
+    sampler = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.1), box, seed=1)
+    a, b = str(tmp_path / "r0.pt"), str(tmp_path / "r1.pt")
+    train(0, 0, sampler, None, a)
+    train(0, 1, sampler, a, b)
+    assert [ppo.load_checkpoint(f)["steps"] for f in (a, b)] == [192, 256] == [p.ges_steps(1), p.ges_steps(2)]
+    K = p.K_d2 + p.K_d3
+    assert run_all.plan(p)["ges"]["ppo_steps"] == 2 * K * p.ges_steps(p.ges_max_rounds)
+
+
 def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
     """Per-design BO runs its random startup trials `workers` at a time and its TPE trials one at a time, each
     TPE trial waiting for the last one's result: on 2 cores, 3 random trials take two trial-times, 1 random +
