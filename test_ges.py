@@ -1077,6 +1077,17 @@ def test_experiments_ppo_ballu_rejects_out_of_range_numbers(argv, msg, tmp_path,
     assert not (tmp_path / "out").exists()
 
 
+def test_experiments_ppo_protocol_pairs_each_setting_with_the_first_by_seed():
+    """The screen's paired column: per seed, setting minus the first setting at the last milestone; best
+    policies' J and last policies' J (a result from before the best-policy rule counts its J as the last)."""
+    res = {("a", "obstacle", 0): [{"mean_J": 10.0}], ("a", "obstacle", 1): [{"mean_J": 14.0}],
+           ("b", "obstacle", 0): [{"mean_J": 13.0, "mean_J_last": 11.0}],
+           ("b", "obstacle", 1): [{"mean_J": 15.0, "mean_J_last": 16.0}]}
+    # best: 3, 1 -> 2.0 +- 1.0; last: 1, 2 -> 1.5 +- 0.5
+    assert ppo_protocol._paired(res, "b", "a", "obstacle", (0, 1)) == "2.0 +- 1.0 / 1.5 +- 0.5"
+    assert ppo_protocol._paired(res, "a", "a", "obstacle", (0, 1)) == "-"
+
+
 def test_experiments_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     """The PPO protocol on a tiny budget: a row per setting and task with mean +- SE over seeds, the curve
     figure, a rerun that trains nothing (every milestone's result is kept), one copy of each checkpoint."""

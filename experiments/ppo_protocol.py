@@ -229,17 +229,21 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
             last = results[(s, t, seed)][-1]
             progress(f"protocol {i + 1}/{len(runs)}: {s} {t} seed {seed}: J {last['mean_J']:.1f}, training level "
                      f"{last['train_level']:.1f}  (eta {eta / 60:.0f} min)")
+    ref = settings[0]   # the paired column: each setting minus the first one, seed by seed, at the end
+    pair = f" - {ref}, paired by seed (best / last)"
     rows = ["| setting | task | " + " | ".join(f"J at {m:,} steps" for m in milestones)
-            + " | J of the last policy at the end | training level at the end | wall time per seed |",
-            "|---|---|" + "---|" * (len(milestones) + 3)]
+            + " | J of the last policy at the end | training level at the end | wall time per seed |"
+            + (f" J at the end{pair} |" if len(settings) > 1 else ""),
+            "|---|---|" + "---|" * (len(milestones) + 3 + (len(settings) > 1))]
     for s in settings:
         for t in tasks:
             rs = [results[(s, t, seed)] for seed in seeds]
             cells = [_mean_se([r[k]["mean_J"] for r in rs]) for k in range(len(milestones))]
             wall = np.mean([sum(x["train_s"] + x["score_s"] for x in r) for r in rs]) / 60
-            last = _mean_se([r[-1].get("mean_J_last", r[-1]["mean_J"]) for r in rs])
+            last = _mean_se([_last_J(r[-1]) for r in rs])
             rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {last} | "
-                        f"{_mean_se([r[-1]['train_level'] for r in rs])} | {wall:.0f} min |")
+                        f"{_mean_se([r[-1]['train_level'] for r in rs])} | {wall:.0f} min |"
+                        + (f" {_paired(results, s, ref, t, seeds)} |" if len(settings) > 1 else ""))
     cpus = sorted({x.get("cpu", "not recorded") for r in results.values() for x in r})
     text = (f"J over {what}, {episodes} episodes each, of the best policy by training level (results of runs "
             f"that kept none: the last); mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg "
@@ -250,6 +254,20 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
         f.write(text)
     _protocol_curves(out, settings, tasks, seeds, os.path.join(out, f"{table}_curves.png"))
     return text
+
+
+def _last_J(res) -> float:
+    """The last policy's mean J at a milestone (results from before the best-policy rule hold only it)."""
+    return res.get("mean_J_last", res["mean_J"])
+
+
+def _paired(results, s, ref, task, seeds) -> str:
+    """Setting s minus ref at the last milestone, seed by seed: J of the best policies / of the last ones."""
+    if s == ref:
+        return "-"
+    best = [results[(s, task, x)][-1]["mean_J"] - results[(ref, task, x)][-1]["mean_J"] for x in seeds]
+    last = [_last_J(results[(s, task, x)][-1]) - _last_J(results[(ref, task, x)][-1]) for x in seeds]
+    return f"{_mean_se(best)} / {_mean_se(last)}"
 
 
 def _rescore_lines(results, tasks) -> str:
