@@ -1119,6 +1119,18 @@ def test_experiments_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     assert kept["mean_J"] == -1.0 and kept["rescored"][ppo_protocol.cpu_model()]["J"] == res["J"]
     stamp = os.path.getmtime(path)
     assert ppo_protocol.protocol(str(tmp_path), **dict(kw, rescore=True)) == again and os.path.getmtime(path) == stamp
+    # fresh designs: each milestone's best policy scored once more on designs no run was chosen on, kept, not redone
+    fresh = ppo_protocol.protocol(str(tmp_path), **dict(kw, fresh=2, table="fresh"))
+    res = json.loads((seed0 / "result_256.json").read_text())
+    assert res["fresh"]["n"] == 2 and len(res["fresh"]["J"]) == 2 and "2 fresh designs (seed 17)" in fresh
+    designs = ppo_protocol.protocol_designs(2, ppo_protocol.FRESH_DESIGN_SEED)
+    J = ballu.score(ppo.load_policy(str(seed0 / res["best_file"])), designs, "obstacle", episodes=1)
+    assert J.tolist() == res["fresh"]["J"]
+    stamp = os.path.getmtime(seed0 / "result_256.json")
+    assert ppo_protocol.protocol(str(tmp_path), **dict(kw, fresh=2, table="fresh")) == fresh
+    assert os.path.getmtime(seed0 / "result_256.json") == stamp
+    with pytest.raises(ValueError, match="single design"):
+        ppo_protocol.protocol(str(tmp_path), **dict(kw, fresh=2, design=[0.45, 0.45, 0.8, 0.005]))
 
 
 def test_ppo_gaussian_log_prob_and_entropy_match_torch_normal():

@@ -86,14 +86,17 @@ PROTOCOL_SETTINGS = {
 PROTOCOL_DESIGN_SEED = 16   # the 12 held-out D2 designs: the same for every setting, task and seed
 
 
-def protocol_designs(n_designs: int = 12) -> np.ndarray:
+FRESH_DESIGN_SEED = 17      # designs no protocol run was chosen on: a check that J does not fit the 12 above
+
+
+def protocol_designs(n_designs: int = 12, seed: int = PROTOCOL_DESIGN_SEED) -> np.ndarray:
     """The protocol's held-out D2 designs (full design vectors): one seeded uniform draw, so every setting, task,
     seed and fork is scored on the same designs."""
-    return ballu.d2().full(ballu.d2().sample_uniform(np.random.default_rng(PROTOCOL_DESIGN_SEED), n_designs))
+    return ballu.d2().full(ballu.d2().sample_uniform(np.random.default_rng(seed), n_designs))
 
 
 def run_one(folder, setting, task, seed, milestones, designs, episodes, workers, base_cfg, rescore=False,
-            sampler=None):
+            sampler=None, fresh=0):
     """Train one (setting, task, seed) to each milestone in turn; J on the held-out designs at each one.
     `sampler` draws the training designs (default uniform D2; a ballu.FixedDesign for single-design runs).
     J is the best policy's (ppo.scored_path [facts]), J_last the last one's. Resumable: a milestone's result is
@@ -102,7 +105,9 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
     policy_best.pt exist only while training (a later milestone resumes from the last policy_<steps>.pt, whose
     best level it carries). rescore: a result scored on another CPU model
     is scored again here from its policy_<steps>.pt (J differs between CPU models, see cpu_model), kept beside the
-    first score under "rescored", and returned in its place, so one table holds one machine's scores."""
+    first score under "rescored", and returned in its place, so one table holds one machine's scores.
+    fresh: also J of each milestone's best policy on `fresh` designs of FRESH_DESIGN_SEED (kept under "fresh",
+    scored once: settings were compared and chosen on the held-out designs, so these say whether J fits them)."""
     os.makedirs(folder, exist_ok=True)
     changes = dict(setting)
     start_level = ballu.named_start_levels(changes.pop("start_level", 0), task)   # "spread" / "task" -> levels
@@ -112,16 +117,26 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
     ckpt, log_csv, out = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv"), []
     here = cpu_model()
 
-    def score(policy_path):   # J of a checkpoint on the held-out designs, and the seconds it took
+    def score(policy_path, on=designs):   # J of a checkpoint on the held-out designs, and the seconds it took
         t0 = time.time()
-        J = ballu.score(ppo.load_policy(policy_path), designs, task, episodes=episodes, workers=workers, cfg=bcfg)
+        J = ballu.score(ppo.load_policy(policy_path), on, task, episodes=episodes, workers=workers, cfg=bcfg)
         return J, time.time() - t0
 
+    def add_fresh(res, path):   # J on the fresh designs, once per result file
+        if fresh and res.get("fresh", {}).get("n") != fresh:
+            J, secs = score(os.path.join(folder, res.get("best_file", f"policy_{res['steps']}.pt")), fresh_designs)
+            res["fresh"] = {"n": fresh, "seed": FRESH_DESIGN_SEED, "J": J.tolist(), "mean_J": float(J.mean()),
+                            "score_s": secs, "cpu": here}
+            with open(path, "w") as f:
+                json.dump(res, f)
+        return res
+
+    fresh_designs = protocol_designs(fresh, FRESH_DESIGN_SEED) if fresh else None
     for m in milestones:
         path = os.path.join(folder, f"result_{m}.json")
         if os.path.exists(path):
             with open(path) as f:
-                res = json.load(f)
+                res = add_fresh(json.load(f), path)
             if rescore and res.get("cpu") != here:
                 if here not in res.setdefault("rescored", {}):
                     J, secs = score(os.path.join(folder, res.get("best_file", f"policy_{m}.pt")))
@@ -157,7 +172,7 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
                "cpu": here}
         with open(path, "w") as f:
             json.dump(res, f)
-        out.append(res)
+        out.append(add_fresh(res, path))
     return out
 
 
@@ -204,16 +219,19 @@ def _mean_se(values) -> str:
 def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(0, 1, 2),
              milestones=(1_000_000, 2_000_000), n_designs: int = 12, episodes: int = 20, workers: int = 2,
              base_cfg: ppo.PPOConfig = ppo.PPOConfig(), progress=print, rescore: bool = False,
-             table: str = "protocol", design=None) -> str:
+             table: str = "protocol", design=None, fresh: int = 0) -> str:
     """e2e MLP trained on uniform D2 designs per (setting, task, seed); J over `n_designs` fixed held-out D2 designs
     at each milestone; a table (mean and standard error over seeds) in out/<table>.md and the training-level
     curves in out/<table>_curves.png. All settings share designs, budgets, seeds and code. Resumable.
     rescore: results scored on another CPU model are scored again on this one (run_one).
     design: train on this one design (l_f, l_t, gcr, spcf) and score on it, exactly as trained (a constant
-    design entry has ~zero variance in the observation normaliser: ppo.RunningNorm)."""
+    design entry has ~zero variance in the observation normaliser: ppo.RunningNorm).
+    fresh: also score each milestone's best policy on this many designs of FRESH_DESIGN_SEED (run_one)."""
     unknown = [s for s in settings if s not in PROTOCOL_SETTINGS]
     if unknown:
         raise ValueError(f"settings {unknown} unknown: one of {sorted(PROTOCOL_SETTINGS)}")
+    if fresh and design is not None:
+        raise ValueError("fresh designs score a policy trained on uniform designs: not with a single design")
     designs = protocol_designs(n_designs) if design is None else np.array([design], dtype=float)
     sampler = None if design is None else ballu.FixedDesign(design)
     what = (f"{n_designs} held-out D2 designs (seed {PROTOCOL_DESIGN_SEED})" if design is None else
@@ -223,7 +241,7 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
     for i, (s, t, seed) in enumerate(runs):
         folder = os.path.join(out, s, t, f"seed{seed}")
         results[(s, t, seed)] = run_one(folder, PROTOCOL_SETTINGS[s], t, seed, milestones, designs, episodes,
-                                        workers, base_cfg, rescore, sampler)
+                                        workers, base_cfg, rescore, sampler, fresh)
         if progress:
             eta = eta_s(time.time() - t_start, i + 1, len(runs) - i - 1)
             last = results[(s, t, seed)][-1]
@@ -233,8 +251,9 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
     pair = f" - {ref}, paired by seed (best / last)"
     rows = ["| setting | task | " + " | ".join(f"J at {m:,} steps" for m in milestones)
             + " | J of the last policy at the end | training level at the end | wall time per seed |"
-            + (f" J at the end{pair} |" if len(settings) > 1 else ""),
-            "|---|---|" + "---|" * (len(milestones) + 3 + (len(settings) > 1))]
+            + (f" J at the end{pair} |" if len(settings) > 1 else "")
+            + (f" J at the end on {fresh} fresh designs (seed {FRESH_DESIGN_SEED}) |" if fresh else ""),
+            "|---|---|" + "---|" * (len(milestones) + 3 + (len(settings) > 1) + bool(fresh))]
     for s in settings:
         for t in tasks:
             rs = [results[(s, t, seed)] for seed in seeds]
@@ -243,7 +262,8 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
             last = _mean_se([_last_J(r[-1]) for r in rs])
             rows.append(f"| {s} | {t} | " + " | ".join(cells) + f" | {last} | "
                         f"{_mean_se([r[-1]['train_level'] for r in rs])} | {wall:.0f} min |"
-                        + (f" {_paired(results, s, ref, t, seeds)} |" if len(settings) > 1 else ""))
+                        + (f" {_paired(results, s, ref, t, seeds)} |" if len(settings) > 1 else "")
+                        + (f" {_mean_se([r[-1]['fresh']['mean_J'] for r in rs])} |" if fresh else ""))
     cpus = sorted({x.get("cpu", "not recorded") for r in results.values() for x in r})
     text = (f"J over {what}, {episodes} episodes each, of the best policy by training level (results of runs "
             f"that kept none: the last); mean +- standard error over seeds {list(seeds)}; cm (obstacle) / deg "
@@ -330,6 +350,8 @@ def main(argv=None):
     ap.add_argument("--rescore", action="store_true", help="score again on this CPU model the results scored on "
                     "another (J differs between CPU models), and table this machine's scores")
     ap.add_argument("--table", default="protocol", help="the table's name (NAME.md, NAME_curves.png)")
+    ap.add_argument("--fresh", type=int, default=0, help="also score each milestone's best policy on this many "
+                    f"designs the protocol never draws (seed {FRESH_DESIGN_SEED}; default 0: none)")
     ap.add_argument("--design", default=None, help="l_f,l_t,gcr,spcf: train on this one design and score on it "
                     "(default: uniform D2, scored on the 12 held-out designs)")
     args = ap.parse_args(argv)
@@ -341,6 +363,8 @@ def main(argv=None):
     milestones = sorted(_int_list(args.milestones, "--milestones", 1))
     if args.workers < 1:
         ap.error(f"--workers {args.workers} must be >= 1")
+    if args.fresh < 0 or (args.fresh and args.design is not None):
+        ap.error(f"--fresh {args.fresh} must be >= 0, and 0 with --design (a single design scores on itself)")
     if not args.table or os.sep in args.table:
         ap.error(f"--table {args.table!r} must be a plain file name (no {os.sep!r})")
     design = None
@@ -350,7 +374,7 @@ def main(argv=None):
         except ValueError as e:
             ap.error(str(e))
     print(protocol(args.out, settings, tasks, seeds, milestones, workers=args.workers, rescore=args.rescore,
-                   table=args.table, design=design))
+                   table=args.table, design=design, fresh=args.fresh))
 
 
 if __name__ == "__main__":
