@@ -559,13 +559,14 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     goes to best_path(ckpt) [facts: the authors keep the update with the highest mean level]. [ours] The mean
     over `ckpt_every` updates, not one update's: 32 lanes' mean level moves by chance from update to update,
     and a best taken only at checkpoints is rewritten bit for bit by a run resumed after a kill.
-    Returns a summary of the last iteration and the best one.
+    Returns a summary of the last iteration and the best one, and whether the run resumed from `ckpt`.
     """
     if env.num_envs < 1:
         raise ValueError(f"env.num_envs={env.num_envs!r} must be >= 1")
     if total_steps < 1:
         raise ValueError(f"total_steps={total_steps!r} must be >= 1")
     torch.set_num_threads(1)   # the env workers own the cores; the update is small
+    resumed = os.path.exists(ckpt)
     policy, norm, opt, rng, lr, steps, levels, ret_norm = start_run(kind, env, ckpt, init_ckpt, cfg, seed,
                                                                     start_level)
     if steps >= total_steps:
@@ -604,7 +605,8 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
                 save(ckpt, {"best": best})
                 window.clear()
     return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
-            "wall_s": time.time() - log.t_start, "best_level": best["level"], "best_steps": best["steps"]}
+            "wall_s": time.time() - log.t_start, "best_level": best["level"], "best_steps": best["steps"],
+            "resumed": resumed}
 
 
 def _best_so_far(ckpt: str) -> dict:

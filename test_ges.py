@@ -766,6 +766,7 @@ def test_ppo_keeps_the_policy_of_the_best_level_and_a_resumed_run_carries_it(tmp
     cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4, ckpt_every=3)
     ck, ck2 = str(tmp_path / "a.pt"), str(tmp_path / "b.pt")
     out = ppo.train("mlp", PointMassLevels(16), None, 30 * cfg.batch, ck, cfg, seed=0, progress=None)
+    assert out["resumed"] is False
     best = ppo.load_checkpoint(ppo.best_path(ck))
     assert (out["best_steps"], best["steps"]) == (15 * cfg.batch, 15 * cfg.batch), out
     assert out["best_level"] == pytest.approx(-2 / 3) and best["extra"]["best"]["level"] == pytest.approx(-2 / 3)
@@ -775,6 +776,7 @@ def test_ppo_keeps_the_policy_of_the_best_level_and_a_resumed_run_carries_it(tmp
     out = ppo.train("mlp", PointMassLevels(16, first_update=18), None, 30 * cfg.batch, ck2, cfg, seed=0,
                     progress=None)
     again = ppo.load_checkpoint(ppo.best_path(ck2))
+    assert out["resumed"] is True
     assert first["steps"] == again["steps"] == out["best_steps"] == 15 * cfg.batch
     for k, w in first["policy"].items():
         assert torch.equal(w, again["policy"][k]), k
