@@ -127,6 +127,13 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
     return ckpt
 
 
+def specialist_steps(first_round_steps: int | None, round_steps: int, rounds: int) -> int:
+    """Steps a GES specialist has trained after `rounds` rounds: round 0's budget (None: round_steps), then
+    round_steps per round."""
+    first = round_steps if first_round_steps is None else first_round_steps
+    return first + (rounds - 1) * round_steps if rounds > 0 else 0
+
+
 @dataclass
 class TrainSpecialist:
     """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
@@ -150,8 +157,8 @@ class TrainSpecialist:
         base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
-            first = self.round_steps if self.first_round_steps is None else self.first_round_steps
-            ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + first + round * self.round_steps,
+            steps = specialist_steps(self.first_round_steps, self.round_steps, round + 1)
+            ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + steps,
                       ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed,
                       start_level=start_levels(self.task, self.preset), log_csv=log, progress=None)
         finally:
@@ -316,8 +323,7 @@ class Preset:
 
     def ges_steps(self, rounds: int) -> int:
         """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted)."""
-        first = self.ges_round_steps if self.ges_first_round_steps is None else self.ges_first_round_steps
-        return first + (rounds - 1) * self.ges_round_steps if rounds > 0 else 0
+        return specialist_steps(self.ges_first_round_steps, self.ges_round_steps, rounds)
 
 
 # [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
