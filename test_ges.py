@@ -2221,6 +2221,42 @@ def test_report_best_of_needs_every_comparison():
     assert tables.best_of(table, "a") == "not resolved" and tables.best_of(table, "d") == "not measured"
 
 
+def test_cross_seed_claims_hold_only_where_every_run_agrees(tmp_path):
+    """report.cross_seed: a claim holds across runs only if every run supports it. Two runs with GES 3 cm above
+    every baseline: 'holds in both'; the second run's GES 3 cm below instead: 'conflicting'; a damaged results
+    file: a one-line error, not a traceback."""
+    from report import cross_seed
+    rng = np.random.default_rng(0)
+
+    def run(folder, ges_shift):
+        cells = {}
+        for t, s in tables.CELLS:
+            x = rng.normal(20, 4, 60)
+            shifts = {"baseline": 0.0, "mlp": 0.0, "moe": 0.0, "ges": ges_shift}
+            cells[f"{t}-{s}"] = {m: {"scores": (x + d + rng.normal(0, 0.5, 60)).tolist()} for m, d in shifts.items()}
+        os.makedirs(folder)
+        with open(os.path.join(folder, "results.json"), "w") as fh:
+            ges_d2 = {"scores": cells["obstacle-d2"]["ges"]["scores"]}
+            json.dump({"manifest": {"preset": "quick", "seed": len(os.listdir(tmp_path))},
+                       "stages": {"table2": {"cells": cells}, "ksens": {"1": ges_d2, "3": ges_d2}}}, fh)
+        return str(folder)
+
+    a, b, c = run(tmp_path / "a", 3.0), run(tmp_path / "b", 3.0), run(tmp_path / "c", -3.0)
+    rows = [line for line in cross_seed.report([a, b]).splitlines() if line.startswith("| GES >")]
+    assert len(rows) == 8 and all(line.endswith("| holds in both |") for line in rows)
+    text = cross_seed.report([a, c])
+    assert "GES > e2e MLP supported in 0 of 4 cells, reversed in 4" in text
+    assert text.count("conflicting (supported in 1, reversed in 1 of 2)") == 8 + 1   # 8 cells + K = 1 > e2e MLP
+    assert "| K = 1 > K = 3, obstacle D2 (ours: Fig. 7) | not resolved (+0.0" in text   # the same scores: a tie
+    assert cross_seed.across(["supported", "not resolved", "not measured"]) == (
+        "supported in 1 of 2, unresolved in the rest; not measured in 1")
+    with open(os.path.join(c, "results.json"), "w") as fh:
+        fh.write("{")
+    with pytest.raises(SystemExit, match="not a run_all results file"):
+        cross_seed.report([a, c])
+
+
+
 def raw_numbers(out: str) -> dict:
     """Every raw number of a run: score sets (J and every episode's final pelvis x), GES states (coverage,
     territories, probes, winners per round), TPE trials (x, y), and a hash of every policy checkpoint's weights

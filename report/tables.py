@@ -196,6 +196,8 @@ def gait_evidence(gaits: dict) -> str:
 def designs_needed(results: dict, claimed: str, power_z: float = 2.8) -> str:
     """How many test designs a paired test would need to resolve each comparison the run left open, at the
     measured spread of the paired differences: n = (2.8 sd / |mean|)^2 (two-sided 5 %, 80 % power)."""
+    if claimed not in results:
+        return f"no run of {claimed}"
     need = []
     for k, r in results.items():
         if k == claimed:
@@ -238,8 +240,9 @@ def cost_claim(cost: dict) -> list:
 COST_DRIFT_PCT = 20.0   # [ours] this machine's speed drifts +-20 % between runs (developers' guide, measured)
 
 
-def report_claims(results: dict) -> list:
-    """Which of the paper's claims this run supports, from this run's numbers only (paired tests, p < 0.05)."""
+def claim_rows(results: dict) -> list:
+    """Each paper claim this run measures, as [claim, verdict, evidence], from this run's numbers only (paired
+    tests, p < 0.05); `results` maps stage names to their results (REPORT.md's and report.cross_seed's rows)."""
     rows = []
     t2 = results.get("table2")
     if t2:
@@ -274,7 +277,12 @@ def report_claims(results: dict) -> list:
                      "supported" if red > COST_DRIFT_PCT else "not supported" if red < -COST_DRIFT_PCT
                      else "not resolved", f"reduction {red:.0f} % (one measurement each, no CI; beyond "
                      f"+-{COST_DRIFT_PCT:.0f} % counts)"])
+    return rows
+
+
+def report_claims(results: dict) -> list:
+    """Which of the paper's claims this run supports: claim_rows under REPORT.md's heading."""
     return (["## Which of the paper's claims does this run support?", "",
              "From this run's numbers only: 'supported' = the claimed difference holds at p < 0.05 (Wilcoxon "
              "signed-rank, paired over the same test designs), 'not supported' = the opposite holds at p < 0.05, "
-             "'not resolved' = neither.", ""] + md_table(["claim", "verdict", "evidence"], rows))
+             "'not resolved' = neither.", ""] + md_table(["claim", "verdict", "evidence"], claim_rows(results)))
