@@ -50,9 +50,10 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 import zlib
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -468,8 +469,9 @@ def ges_name(task: str, sp: str, K: int, init: str) -> str:
     return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"
 
 
-def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
-    """Run (or resume, or load) one GES stage 1; returns its summary with the wall time of its rounds."""
+def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: threading.Event | None = None) -> dict:
+    """Run (or resume, or load) one GES stage 1; returns its summary with the wall time of its rounds. A set
+    `stop` ends it after its next saved round (another run beside it failed)."""
     p = run.preset
     name, space = ges_name(task, sp, K, init), space_of(p, task, sp)
     run_dir = run.path("ges", name)
@@ -495,6 +497,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
         eta = "eta -" if eta is None else f"eta <= {eta:.0f}s"
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
+        if stop is not None and stop.is_set():
+            raise RuntimeError(f"GES {name} stopped after round {r}: a GES run beside it failed")
 
     warm = (ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule)
             if p.ges_warm_start else "")
@@ -508,13 +512,29 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor) -> dict:
 
 
 def ges_runs(run: Run, specs: list, label: str) -> dict:
-    """Several GES runs sharing one process pool (the K specialists of a round run in parallel)."""
-    out, prog = {}, Progress(label, len(specs), every=0)
+    """Several GES runs on one pool of workers, side by side: each run in a thread of this process submits its
+    round's K specialists (then its probes) to the shared pool, so while one run waits on its last specialist
+    (K = 3 on 2 cores) another run's job takes the idle core [ours: docs/presets.md]. A run's numbers depend on its
+    seed alone, not on the interleaving. When one run fails, the others stop after their next saved round (a
+    rerun resumes every run). With one worker (jobs run inline, in the calling thread) the runs go one by one."""
+    names, prog, stop = [ges_name(*sp) for sp in specs], Progress(label, len(specs), every=0), threading.Event()
+    out = {}
     with run.pool() as ex:
-        for i, (task, sp, K, init) in enumerate(specs):
-            out[ges_name(task, sp, K, init)] = ges_run(run, task, sp, K, init, ex)
-            prog(i + 1, ges_name(task, sp, K, init))
-    return out
+        if isinstance(ex, ges.SerialExecutor):
+            for i, (sp, name) in enumerate(zip(specs, names)):
+                out[name] = ges_run(run, *sp, ex)
+                prog(i + 1, name)
+            return out
+        with ThreadPoolExecutor(len(specs)) as threads:
+            futures = {threads.submit(ges_run, run, *sp, ex, stop): name for sp, name in zip(specs, names)}
+            try:
+                for i, f in enumerate(as_completed(futures)):
+                    out[futures[f]] = f.result()
+                    prog(i + 1, futures[f])
+            except BaseException:
+                stop.set()
+                raise
+    return {name: out[name] for name in names}
 
 
 def stage_ges(run: Run) -> dict:
@@ -1143,6 +1163,12 @@ def played_share(preset: Preset) -> float:
     return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
 
 
+# [ours] how much faster a job runs while the other cores idle than beside busy ones: 2 workers do 1.68x one
+# (`python ballu.py --bench`, docs/speed), so a lone job on 2 cores runs 2 / 1.68 = 1.19x the per-core rate.
+# With it the plan gives the overnight run's Fig. 7 stage (GES runs of K = 1-6, 2-6 rounds each) 5,440 s at its
+# actual rounds, measured 5,327 s; perfect packing gave 5,020 (docs/presets.md).
+ALONE_SPEEDUP = 2 / 1.68
+
 # Fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import torch and
 # pybullet), once per pool a stage starts, and the figures stage (docs/presets.md).
 POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
@@ -1151,9 +1177,12 @@ POOL_START_S, FIGURES_S = 2.0, 40.0
 
 def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
     """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
-    trials) and GES probes, and the hours on `workers` cores at the given per-core rates with perfect packing
-    (but per-design BO: its random startup trials `workers` at a time, the TPE trials after them one at a time),
-    scores at the share of episodes that score's reuse plays (SCORE_PLAYED).
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates, scores at the share of
+    episodes that score's reuse plays (SCORE_PLAYED). Jobs pack onto the cores as the stages run them: a stage's
+    GES runs go side by side, their specialists of a round `workers` at a time (Table III's one other run of K = 3
+    on 2 cores: two waves, a core idle in the second), Table III's and Fig. 7's score sets side by side,
+    per-design BO's random startup trials `workers` at a time and its TPE trials one at a time; everything else
+    packs perfectly.
     GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
     that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
     figures stage (FIGURES_S)."""
@@ -1166,6 +1195,10 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
         return np.array([sum(K * p.ges_steps(p.ges_max_rounds) for K in Ks), 0,
                          sum(K * p.ges_probes * probe_J for K in Ks) * p.ges_max_rounds])
 
+    def idle(n):   # jobs' worth of core time n equal jobs leave idle, run `workers` at a time; a last, partial
+        # wave's jobs run ALONE_SPEEDUP x faster on the emptier machine
+        return workers * (n // workers) + (workers / ALONE_SPEEDUP if n % workers else 0) - n
+
     cells = len(TASKS) * len(SPACES)
     other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
     work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
@@ -1175,14 +1208,22 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
             "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
             "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
+    # control steps the idle cores could have done: a stage's GES runs side by side (ges_runs), their specialists
+    # in waves of `workers` each round; its score sets side by side
+    spec = p.ges_steps(p.ges_max_rounds)
+    ges_idle = lambda Ks: np.array([idle(sum(Ks)) * spec, 0, 0])   # noqa: E731
+    waste = {"ges": ges_idle([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
+             "table3": ges_idle([p.K_d2] * other_inits) + [0, idle(other_inits) * p.n_test * J, 0],
+             "ksens": ges_idle(other_K) + [0, idle(len(other_K)) * p.n_test * J, 0]}
     played = played_share(p)
     fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
     # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
     startup = min(p.cost_trials, p.tpe_startup)
     width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
+    busy = {s: w + waste.get(s, 0) for s, w in work.items()}
     return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": ((w[0] / train_rate + played * (w[1] + w[2]) / score_rate) / width.get(stage, workers)
-                              + fixed[stage]) / 3600} for stage, w in work.items()}
+                    "hours": ((b[0] / train_rate + played * (b[1] + b[2]) / score_rate) / width.get(stage, workers)
+                              + fixed[stage]) / 3600} for (stage, w), b in zip(work.items(), busy.values())}
 
 
 def plan_text(preset: Preset, workers: int = 2) -> str:

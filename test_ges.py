@@ -2112,6 +2112,24 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
 
 
 @pytest.mark.slow
+def test_run_all_ges_runs_side_by_side_give_the_inline_numbers(smoke_run, tmp_path, monkeypatch):
+    """With a process pool of 2 a stage's GES runs go side by side (ges_runs' threads): a simulated kill in one
+    run stops the stage (the others after their round), and the rerun gives exactly the inline run's GES states
+    and specialist checkpoints."""
+    run = run_all.Run(str(tmp_path), run_all.SMOKE, 3, 2)
+    specs = [("obstacle", "d2", 3, "fps+lloyd"), ("obstacle", "d2", 1, "fps+lloyd")]   # Fig. 7's K = 3 and 1
+    monkeypatch.setenv("RUN_ALL_FAIL_AT", "ges:obstacle-d2-K3-fps-lloyd:round1")
+    with pytest.raises(RuntimeError, match="simulated kill"):
+        run_all.ges_runs(run, specs, "GES runs")
+    assert read_json(str(tmp_path / "ges" / "obstacle-d2-K3-fps-lloyd" / "state.json"))["round"] == 1
+    monkeypatch.delenv("RUN_ALL_FAIL_AT")
+    assert list(run_all.ges_runs(run, specs, "GES runs")) == [run_all.ges_name(*sp) for sp in specs]
+    mine, ref = raw_numbers(str(tmp_path)), raw_numbers(smoke_run)
+    assert sum(k.endswith("state.json") for k in mine) == 2 and len(mine) > 2
+    assert [k for k in mine if mine[k] != ref[k]] == []
+
+
+@pytest.mark.slow
 def test_run_all_killed_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monkeypatch):
     out = str(tmp_path / "b")
     args = ["--preset", "smoke", "--out", out, "--workers", "1", "--seed", "3"]
@@ -2630,6 +2648,23 @@ def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     assert [ppo.load_checkpoint(f)["steps"] for f in (a, b)] == [192, 256] == [p.ges_steps(1), p.ges_steps(2)]
     K = p.K_d2 + p.K_d3
     assert run_all.plan(p)["ges"]["ppo_steps"] == 2 * K * p.ges_steps(p.ges_max_rounds)
+
+
+def test_run_all_plan_packs_specialists_as_the_stages_run_them():
+    """A stage's GES runs go side by side, their specialists `workers` at a time: on 2 cores the ges stage's 18
+    specialists (3 + 6 per task) pack perfectly, Fig. 7's lone K = 1 run trains one specialist on an otherwise idle
+    machine (ALONE_SPEEDUP x the per-core rate), Table III's lone K = 3 run in two waves; on 1 core, one by one."""
+    p = replace(run_all.QUICK, ksens_K=(1, 3), table3_inits=("grid", "fps+lloyd"), ges_probes=0, n_test=0)
+    spec, rate = p.ges_steps(p.ges_max_rounds), run_all.TRAIN_RATE
+
+    def seconds(stage, workers):   # without the process pool's start
+        pools = run_all.POOLS[stage] * run_all.POOL_START_S * (workers > 1)
+        return run_all.plan(p, workers)[stage]["hours"] * 3600 - pools
+    assert seconds("ges", 2) == pytest.approx(18 * spec / rate / 2)
+    assert seconds("ksens", 2) == pytest.approx(spec / rate / run_all.ALONE_SPEEDUP)
+    assert seconds("table3", 2) == pytest.approx((spec + spec / run_all.ALONE_SPEEDUP) / rate)
+    assert [seconds(s, 1) for s in ("ges", "ksens", "table3")] == pytest.approx([18 * spec / rate, spec / rate,
+                                                                                 3 * spec / rate])
 
 
 def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
