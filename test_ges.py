@@ -1090,6 +1090,22 @@ def test_experiments_ppo_protocol_pairs_each_setting_with_the_first_by_seed():
     assert ppo_protocol._paired(res, "a", "a", "obstacle", (0, 1)) == "-"
 
 
+def test_experiments_ppo_protocol_names_the_runs_a_kill_resumed(tmp_path):
+    """A training log whose wall clock starts again: at a milestone's checkpoint (1,001,472 steps, the first whole
+    update past 1 M) that is the protocol's schedule; at 368,640 it is a kill, which the table names."""
+    log = tmp_path / "lr_cap" / "obstacle" / "seed2" / "log.csv"
+    log.parent.mkdir(parents=True)
+    steps = np.arange(2048, 1_200_000, 2048)
+    wall = np.concatenate([np.arange(1, 181), np.arange(1, 310), np.arange(1, 1 + len(steps) - 489)]).astype(float)
+    log.write_text("steps,wall_s\n" + "".join(f"{s},{w}\n" for s, w in zip(steps, wall)))
+    assert logs.resume_points(str(log)) == [368_640, 1_001_472]
+    assert ppo_protocol.kill_resumes(str(log), [1_000_000, 2_000_000]) == [368_640]
+    line = ppo_protocol._resume_lines(str(tmp_path), [("lr_cap", "obstacle", 2), ("lr_cap", "obstacle", 0)],
+                                      [1_000_000])
+    assert line.startswith("Resumed after a kill") and "lr_cap obstacle seed 2 at 368,640 steps." in line
+    assert ppo_protocol._resume_lines(str(tmp_path), [("lr_cap", "obstacle", 0)], [1_000_000]) == ""
+
+
 def test_experiments_ppo_protocol_tables_every_setting_and_resumes(tmp_path):
     """The PPO protocol on a tiny budget: a row per setting and task with mean +- SE over seeds, the curve
     figure, a rerun that trains nothing (every milestone's result is kept), one copy of each checkpoint."""
