@@ -70,7 +70,8 @@ from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_output, git_commit, open_output
 from runkit.logs import train_seconds, trim_log
-from runkit.pool import close_dask_clients, dask_client, dask_executor, exit_with_parent
+from runkit.pool import (GatedExecutor, StopBy, close_dask_clients, dask_client, dask_executor,
+                         exit_with_parent, stop_time)
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
 from runkit.stats import wins
 
@@ -391,6 +392,7 @@ class Run:
     workers: int
     executor: str = "process"
     scheduler: str | None = None
+    stop_by: float | None = None   # epoch seconds after which no job starts (--stop-by; runkit.pool.GatedExecutor)
 
     def path(self, *parts) -> str:
         return os.path.join(self.out, *parts)
@@ -412,11 +414,13 @@ class Run:
         cluster's, a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs
         its env in its own process (workers=1 inside), so any executor gives the same numbers."""
         if self.executor == "dask":
-            return dask_executor(cluster(self.scheduler, self.workers))
-        if self.workers <= 1:
-            return ges.SerialExecutor()
-        return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
-                                   initargs=(os.getpid(),))
+            ex = dask_executor(cluster(self.scheduler, self.workers))
+        elif self.workers <= 1:
+            ex = ges.SerialExecutor()
+        else:
+            ex = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
+                                     initargs=(os.getpid(),))
+        return ex if self.stop_by is None else GatedExecutor(ex, self.stop_by)
 
 
 # --- Table I ------------------------------------------------------------------------------------------------
@@ -1316,6 +1320,10 @@ def parse(argv):
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fresh", action="store_true", help="delete this run's earlier results and start over")
+    ap.add_argument("--stop-by", default=None, metavar="HH:MM",
+                    help="no job starts after this time of day (its next occurrence); jobs under way finish, then "
+                         "the run stops (exit 3) and a rerun goes on with exactly an uninterrupted run's numbers, "
+                         "which a kill during a PPO training would change")
     ap.add_argument("--executor", default="process", choices=("process", "dask"),
                     help="independent jobs on a local process pool (default) or a Dask cluster")
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -1417,6 +1425,7 @@ def main(argv=None) -> int:
     try:
         if args.workers < 1:
             raise BadInput(f"--workers {args.workers} must be >= 1")
+        stop_by = stop_time(args.stop_by) if args.stop_by else None
         if args.plan:
             print(plan_text(preset, args.workers), flush=True)
             return 0
@@ -1430,12 +1439,13 @@ def main(argv=None) -> int:
         reuse = check_output(out, manifest, args.fresh)
         check_needs(out, stages, reuse)
         manifest = open_output(out, manifest, reuse)
-        run = Run(out, preset, args.seed, args.workers, args.executor, args.scheduler)
+        run = Run(out, preset, args.seed, args.workers, args.executor, args.scheduler, stop_by)
         if reuse:
             repair(run)
         t0 = time.time()
         say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
-            f"stages {stages}")
+            f"stages {stages}" + (f"; no job starts after {time.strftime('%Y-%m-%d %H:%M', time.localtime(stop_by))}"
+                                  if stop_by else ""))
         planned = {k: 3600 * v["hours"] for k, v in plan(preset, args.workers).items()}
         todo, ran = [s for s in stages if not stage_done(out, s)], {}
         recorded = functools.partial(stage_times, run.path("stage_seconds.json"))
@@ -1457,6 +1467,9 @@ def main(argv=None) -> int:
     except BadInput as e:
         print(f"run_all.py: error: {e}", file=sys.stderr)
         return 2
+    except StopBy as e:
+        say(f"stopped: {e} (--stop-by); the jobs under way finished and are kept: rerun the same command to go on")
+        return 3
     finally:
         close_dask_clients()   # a client connected by check_args, if a later check failed
 

@@ -2145,6 +2145,45 @@ def test_run_all_ges_runs_side_by_side_give_the_inline_numbers(smoke_run, tmp_pa
     assert [k for k in mine if mine[k] != ref[k]] == []
 
 
+def test_gated_executor_starts_no_job_after_its_time():
+    """runkit.pool.GatedExecutor: a job starting before stop_by runs, one starting after raises StopBy (through
+    its future, as a pool would); --stop-by HH:MM is its next occurrence within a day, a bad one a BadInput."""
+    from runkit.files import BadInput
+    from runkit.pool import GatedExecutor, StopBy, stop_time
+    ran = []
+    ex = GatedExecutor(ges.SerialExecutor(), time.time() + 60)
+    assert ex.submit(ran.append, 1).result() is None and ran == [1]
+    late = GatedExecutor(ges.SerialExecutor(), time.time() - 1).submit(ran.append, 2)
+    with pytest.raises(StopBy, match="no job starts after"):
+        late.result()
+    assert ran == [1]
+    noon = time.mktime((2026, 11, 27, 12, 0, 0, 0, 0, -1))
+    assert stop_time("13:30", noon) - noon == 5400 and stop_time("11:00", noon) - noon == 23 * 3600
+    with pytest.raises(BadInput, match="--stop-by '7pm' must be a time of day HH:MM"):
+        stop_time("7pm")
+
+
+@pytest.mark.slow
+def test_run_all_stopped_by_its_time_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monkeypatch):
+    """--stop-by: no job starts after the time (here: after the 6th of the 10 standalone policies), the run stops
+    with exit 3 and keeps what finished; the rerun (no stop) gives exactly the uninterrupted run's policies."""
+    import types
+    from runkit import pool as rpool
+    calls = iter(range(10 ** 6))
+    clock = types.SimpleNamespace(time=lambda: 0.0 if next(calls) < 6 else 1e12, strftime=time.strftime,
+                                  localtime=time.localtime)
+    monkeypatch.setattr(rpool, "time", clock)
+    monkeypatch.setattr(run_all, "stop_time", lambda text: 1.0)
+    args = ["--preset", "smoke", "--out", str(tmp_path), "--workers", "1", "--seed", "3",
+            "--only", "table1,baselines"]
+    assert run_all.main(args + ["--stop-by", "12:00"]) == 3
+    assert len(glob.glob(str(tmp_path / "policies" / "*" / "policy.pt"))) == 6
+    monkeypatch.undo()
+    assert run_all.main(args) == 0
+    mine, ref = raw_numbers(str(tmp_path)), raw_numbers(smoke_run)
+    assert len(mine) == 2 * 10 and [k for k in mine if mine[k] != ref[k]] == []   # policy.pt, policy_best.pt
+
+
 @pytest.mark.slow
 def test_run_all_killed_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monkeypatch):
     out = str(tmp_path / "b")

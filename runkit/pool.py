@@ -8,6 +8,7 @@ import tempfile
 import threading
 import time
 import zipfile
+from concurrent.futures import Executor
 
 from runkit.files import BadInput
 
@@ -82,3 +83,44 @@ def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
             time.sleep(every)
         os._exit(1)
     threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
+
+
+class StopBy(Exception):
+    """A job that did not start: the run's stop-by time had passed (GatedExecutor)."""
+
+
+def _gated(stop_by: float, fn, *args, **kwargs):
+    if time.time() >= stop_by:
+        raise StopBy(f"no job starts after {time.strftime('%Y-%m-%d %H:%M', time.localtime(stop_by))}")
+    return fn(*args, **kwargs)
+
+
+class GatedExecutor(Executor):
+    """An executor whose jobs start only before `stop_by` (epoch seconds); one that comes later raises StopBy
+    instead of running, checked where and when it starts (a job queued behind others checks when its turn comes).
+    Jobs under way finish and keep what they wrote, so a run stopped this way and rerun gives an uninterrupted
+    run's numbers, where a kill mid-training would not (a PPO training resumed from a checkpoint starts fresh
+    episodes). [ours] For machines whose sessions end at a known time."""
+
+    def __init__(self, inner: Executor, stop_by: float):
+        self.inner, self.stop_by = inner, stop_by
+
+    def submit(self, fn, /, *args, **kwargs):
+        return self.inner.submit(_gated, self.stop_by, fn, *args, **kwargs)
+
+    def shutdown(self, wait=True, *, cancel_futures=False):
+        return self.inner.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+
+def stop_time(text: str, now: float | None = None) -> float:
+    """'HH:MM' (this machine's local time) as epoch seconds: its next occurrence, within 24 h."""
+    try:
+        hh, mm = (int(x) for x in text.split(":"))
+        if not (0 <= hh < 24 and 0 <= mm < 60):
+            raise ValueError
+    except ValueError:
+        raise BadInput(f"--stop-by {text!r} must be a time of day HH:MM (00:00-23:59)") from None
+    now = time.time() if now is None else now
+    day = time.localtime(now)
+    t = time.mktime((day.tm_year, day.tm_mon, day.tm_mday, hh, mm, 0, 0, 0, -1))
+    return t if t > now else time.mktime((day.tm_year, day.tm_mon, day.tm_mday + 1, hh, mm, 0, 0, 0, -1))
