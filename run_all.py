@@ -142,7 +142,8 @@ class TrainSpecialist:
 
     Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
     and step count carry over) and trains to first_round_steps + r * round_steps control steps. A repeated
-    (interrupted) round first deletes its partial output, so it is identical to an uninterrupted one."""
+    (interrupted) round keeps a specialist whose output reached its steps (it trained in one go: see below) and
+    first deletes a partial one, so the round is identical to an uninterrupted one."""
     task: str
     space: ballu.DesignSpace
     round_steps: int
@@ -152,14 +153,17 @@ class TrainSpecialist:
 
     def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
         log = ckpt_out + ".csv"
+        base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
+        steps = specialist_steps(self.first_round_steps, self.round_steps, round + 1)
+        have = redo_if_damaged(ckpt_out, ckpt_steps, "ppo.py checkpoint", "retraining the specialist") or 0
+        if have >= base + steps:
+            return   # done in an earlier attempt of this round (a stopped run's), from start to end
         for f in (ckpt_out, ppo.best_path(ckpt_out), log):
             if os.path.exists(f):
                 os.remove(f)
         cfg = ppo_config(self.preset)
-        base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
-            steps = specialist_steps(self.first_round_steps, self.round_steps, round + 1)
             ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + steps,
                       ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed,
                       start_level=start_levels(self.task, self.preset), log_csv=log, progress=None)

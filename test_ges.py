@@ -11,6 +11,7 @@ import math
 import os
 import pickle
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -2691,7 +2692,8 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
 @pytest.mark.slow
 def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     """Preset.ges_first_round_steps [facts: the authors' first GES round is 3.2x the later ones]: round 0 trains
-    to the first round's steps, round 1 adds one round's steps to that; --plan counts the same."""
+    to the first round's steps, round 1 adds one round's steps to that; --plan counts the same. A repeated round
+    keeps a specialist that finished and retrains one cut short."""
     p = replace(run_all.SMOKE, ges_first_round_steps=192, ges_round_steps=64)
     space = run_all.space_of(p, "obstacle", "d2")
     box = ges.Box.of(space)
@@ -2699,6 +2701,10 @@ def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     sampler = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.1), box, seed=1)
     a, b = str(tmp_path / "r0.pt"), str(tmp_path / "r1.pt")
     train(0, 0, sampler, None, a)
+    stamp = os.stat(a).st_mtime_ns
+    train(0, 0, sampler, None, a)   # the round again (a stopped run's rerun): a finished specialist is kept
+    assert os.stat(a).st_mtime_ns == stamp
+    shutil.copy(a, b)               # round 1's output cut short at 192 of its 256 steps: retrained from round 0's
     train(0, 1, sampler, a, b)
     assert [ppo.load_checkpoint(f)["steps"] for f in (a, b)] == [192, 256] == [p.ges_steps(1), p.ges_steps(2)]
     K = p.K_d2 + p.K_d3
