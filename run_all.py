@@ -1093,8 +1093,8 @@ def report(run: Run, manifest: dict) -> str:
     results = {name: stage_result(run, name) for name in STAGES}
     times = stage_times(run.path("stage_seconds.json"))
     sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
-                ("table3", lambda r: report_table3(r, run.preset)), ("ksens", report_ksens),
-                ("ges", report_ges_runs), ("cost", report_cost), ("figures", report_figures)]
+                ("table3", lambda r: report_table3(r, run.preset)), ("ksens", lambda r: report_ksens(r, run.preset)),
+                ("ges", lambda r: report_ges_runs(r, run.preset)), ("cost", report_cost), ("figures", report_figures)]
     lines = report_header(run, manifest)
     if any(results.values()):
         lines += report_claims(results)
