@@ -2146,7 +2146,7 @@ def test_run_all_ges_runs_side_by_side_give_the_inline_numbers(smoke_run, tmp_pa
     assert [k for k in mine if mine[k] != ref[k]] == []
 
 
-def test_gated_executor_starts_no_job_after_its_time():
+def test_runkit_gated_executor_starts_no_job_after_its_time():
     """runkit.pool.GatedExecutor: a job starting before stop_by runs, one starting after raises StopBy (through
     its future, as a pool would); --stop-by HH:MM is its next occurrence within a day, a bad one a BadInput."""
     from runkit.files import BadInput
@@ -2295,7 +2295,7 @@ def test_report_best_of_needs_every_comparison():
     assert tables.best_of(table, "a") == "not resolved" and tables.best_of(table, "d") == "not measured"
 
 
-def test_cross_seed_claims_hold_only_where_every_run_agrees(tmp_path):
+def test_report_cross_seed_claims_hold_only_where_every_run_agrees(tmp_path):
     """report.cross_seed: a claim holds across runs only if every run supports it. Two runs with GES 3 cm above
     every baseline: 'holds in both'; the second run's GES 3 cm below instead: 'conflicting'; a damaged results
     file: a one-line error, not a traceback."""
