@@ -1180,8 +1180,9 @@ def played_share(preset: Preset) -> float:
 
 # [ours] how much faster a job runs while the other cores idle than beside busy ones: 2 workers do 1.68x one
 # (`python ballu.py --bench`, docs/speed), so a lone job on 2 cores runs 2 / 1.68 = 1.19x the per-core rate.
-# With it the plan gives the overnight run's Fig. 7 stage (GES runs of K = 1-6, 2-6 rounds each) 5,440 s at its
-# actual rounds, measured 5,327 s; perfect packing gave 5,020 (docs/presets.md).
+# With it, each run's waves counted as they ran then (one run after another), the overnight run's Fig. 7 stage
+# (K = 1, 2, 4, 5, 6 at 6, 6, 2, 2, 2 rounds) plans at 5,440 s, measured 5,327; perfect packing: 5,020
+# (docs/presets.md).
 ALONE_SPEEDUP = 2 / 1.68
 
 # Fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import torch and
