@@ -70,7 +70,7 @@ from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_output, git_commit, open_output
 from runkit.logs import train_seconds, trim_log
-from runkit.pool import (GatedExecutor, StopBy, close_dask_clients, dask_client, dask_executor,
+from runkit.pool import (GatedExecutor, StopBy, clock_text, close_dask_clients, dask_client, dask_executor,
                          exit_with_parent, stop_time)
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
 from runkit.stats import wins
@@ -1236,10 +1236,13 @@ def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score
     # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
     startup = min(p.cost_trials, p.tpe_startup)
     width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
-    busy = {s: w + waste.get(s, 0) for s, w in work.items()}
+    def hours(stage):
+        b = work[stage] + waste.get(stage, 0)
+        return ((b[0] / train_rate + played * (b[1] + b[2]) / score_rate) / width.get(stage, workers)
+                + fixed[stage]) / 3600
+
     return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": ((b[0] / train_rate + played * (b[1] + b[2]) / score_rate) / width.get(stage, workers)
-                              + fixed[stage]) / 3600} for (stage, w), b in zip(work.items(), busy.values())}
+                    "hours": hours(stage)} for stage, w in work.items()}
 
 
 def plan_text(preset: Preset, workers: int = 2) -> str:
@@ -1449,8 +1452,7 @@ def main(argv=None) -> int:
             repair(run)
         t0 = time.time()
         say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
-            f"stages {stages}" + (f"; no job starts after {time.strftime('%Y-%m-%d %H:%M', time.localtime(stop_by))}"
-                                  if stop_by else ""))
+            f"stages {stages}" + (f"; no job starts after {clock_text(stop_by)}" if stop_by else ""))
         planned = {k: 3600 * v["hours"] for k, v in plan(preset, args.workers).items()}
         todo, ran = [s for s in stages if not stage_done(out, s)], {}
         recorded = functools.partial(stage_times, run.path("stage_seconds.json"))

@@ -26,6 +26,7 @@ import numpy as np
 import ballu
 import ppo
 from experiments.ppo_ballu import parse_design
+from runkit.files import write_json
 from runkit.logs import read_log, resume_points
 from runkit.progress import eta_s
 
@@ -122,28 +123,28 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
         J = ballu.score(ppo.load_policy(policy_path), on, task, episodes=episodes, workers=workers, cfg=bcfg)
         return J, time.time() - t0
 
-    def add_fresh(res, path):   # J on the fresh designs, once per result file
-        if fresh and res.get("fresh", {}).get("n") != fresh:
-            J, secs = score(os.path.join(folder, res.get("best_file", f"policy_{res['steps']}.pt")), fresh_designs)
-            res["fresh"] = {"n": fresh, "seed": FRESH_DESIGN_SEED, "J": J.tolist(), "mean_J": float(J.mean()),
-                            "score_s": secs, "cpu": here}
-            with open(path, "w") as f:
-                json.dump(res, f)
-        return res
+    def add_fresh(res) -> bool:   # J on the fresh designs into res, once per result; whether it scored now
+        if not fresh or res.get("fresh", {}).get("n") == fresh:
+            return False
+        J, secs = score(os.path.join(folder, res.get("best_file", f"policy_{res['steps']}.pt")), fresh_designs)
+        res["fresh"] = {"n": fresh, "seed": FRESH_DESIGN_SEED, "J": J.tolist(), "mean_J": float(J.mean()),
+                        "score_s": secs, "cpu": here}
+        return True
 
     fresh_designs = protocol_designs(fresh, FRESH_DESIGN_SEED) if fresh else None
     for m in milestones:
         path = os.path.join(folder, f"result_{m}.json")
         if os.path.exists(path):
             with open(path) as f:
-                res = add_fresh(json.load(f), path)
+                res = json.load(f)
+            if add_fresh(res):
+                write_json(path, res)
             if rescore and res.get("cpu") != here:
                 if here not in res.setdefault("rescored", {}):
                     J, secs = score(os.path.join(folder, res.get("best_file", f"policy_{m}.pt")))
                     res["rescored"][here] = {"J": J.tolist(), "mean_J": float(J.mean()),
                                              "rescore_s": secs}   # the run's wall time stays its own
-                    with open(path, "w") as f:
-                        json.dump(res, f)
+                    write_json(path, res)
                 res = {**res, **res["rescored"][here], "cpu": here,
                        "first_score": {"cpu": res.get("cpu", "not recorded"), "mean_J": res["mean_J"]}}
             out.append(res)
@@ -170,9 +171,9 @@ def run_one(folder, setting, task, seed, milestones, designs, episodes, workers,
                "J_last": J_last.tolist(), "mean_J_last": float(J_last.mean()), "best_file": best_file, **best,
                "train_s": train_s, "score_s": score_s + best_s, "resumed": bool(summary.get("resumed")),
                "cpu": here}
-        with open(path, "w") as f:
-            json.dump(res, f)
-        out.append(add_fresh(res, path))
+        add_fresh(res)
+        write_json(path, res)
+        out.append(res)
     return out
 
 
@@ -282,11 +283,7 @@ def kill_resumes(log_csv: str, milestones) -> list:
     (runkit.logs.resume_points: fresh episodes from there on, so not an uninterrupted run's numbers; measured:
     lr_cap obstacle seed 2 resumed at 368,640 steps scored 15.4 cm at 2 M, uninterrupted 19.5, docs/ppo_protocol).
     Going on from a milestone's checkpoint is the protocol's own schedule, the same for every run."""
-    if not os.path.exists(log_csv):
-        return []
-    log = read_log(log_csv)["steps"]
-    per_update = int(log[1] - log[0]) if len(log) > 1 else 0
-    return [p for p in resume_points(log_csv) if not any(m <= p < m + per_update for m in milestones)]
+    return resume_points(log_csv, planned=milestones) if os.path.exists(log_csv) else []
 
 
 def _resume_lines(out, runs, milestones) -> str:

@@ -49,14 +49,16 @@ def train_seconds(log_csv: str) -> float:
     return total + prev
 
 
-def resume_points(log_csv: str) -> list:
+def resume_points(log_csv: str, planned=()) -> list:
     """Control steps each resumed attempt went on from (its checkpoint's): where wall_s starts again, one update
-    before that attempt's first row. ppo.train resumes the policy, optimiser, normaliser, levels and random
-    streams, not the env: every lane starts a fresh episode there, so a run resumed mid-way gives other numbers
-    than an uninterrupted one."""
+    before that attempt's first row; without those at a `planned` step (the first whole update at or past it: a
+    schedule's own continuation). ppo.train resumes the policy, optimiser, normaliser, levels and random streams,
+    not the env: every lane starts a fresh episode there, so a run resumed mid-way gives other numbers than an
+    uninterrupted one."""
     log = read_log(log_csv)
     steps, wall = log["steps"].astype(int), log["wall_s"]
     if len(steps) < 2:
         return []
     per_update = int(steps[1] - steps[0])
-    return [int(steps[i]) - per_update for i in range(1, len(steps)) if wall[i] < wall[i - 1]]
+    points = [int(steps[i]) - per_update for i in range(1, len(steps)) if wall[i] < wall[i - 1]]
+    return [p for p in points if not any(m <= p < m + per_update for m in planned)]

@@ -89,9 +89,14 @@ class StopBy(Exception):
     """A job that did not start: the run's stop-by time had passed (GatedExecutor)."""
 
 
+def clock_text(t: float) -> str:
+    """Epoch seconds as this machine's local date and time of day, to the minute (a --stop-by time)."""
+    return time.strftime("%Y-%m-%d %H:%M", time.localtime(t))
+
+
 def _gated(stop_by: float, fn, *args, **kwargs):
     if time.time() >= stop_by:
-        raise StopBy(f"no job starts after {time.strftime('%Y-%m-%d %H:%M', time.localtime(stop_by))}")
+        raise StopBy(f"no job starts after {clock_text(stop_by)}")
     return fn(*args, **kwargs)
 
 
