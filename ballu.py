@@ -772,6 +772,7 @@ class BalluEnv:
         self.t = np.zeros(n, dtype=np.int64)
         self.ep_return = np.zeros(n)
         self._held = np.zeros(n, dtype=np.int64)   # episodes a lane has begun on its sampled design
+        self._ep_actions = [[] for _ in range(n)]   # each lane's actions in its episode so far (get_state)
         self.rngs = [np.random.default_rng(0) for _ in range(n)]
         self._ready = False
         self.sim_seconds = 0.0
@@ -862,6 +863,7 @@ class BalluEnv:
         self.t[i] = 0
         self.ep_return[i] = 0.0
         self.tg_phase[i] = 0.0
+        self._ep_actions[i] = []
 
     def set_design_sampler(self, sampler):
         self.design_sampler = sampler
@@ -975,24 +977,34 @@ class BalluEnv:
         return np.concatenate([vel_b, jq, jqd, self.last_action, *tg, cue, normalise_design(self.designs)],
                               axis=1).astype(np.float32)
 
-    def _tg_command(self, a):
-        """The knee commands of the trajectory generator (cfg.tg) for actions (c_l, c_r, f, A); advances the phase."""
+    def _tg_command(self, a, lanes):
+        """The knee commands of the trajectory generator (cfg.tg) for actions (c_l, c_r, f, A) of `lanes`;
+        advances their phase."""
         lo, hi = self.cfg.tg_freq
-        self.tg_phase = (self.tg_phase + (lo + (hi - lo) * np.clip(a[:, 2], 0, 1)) * self.cfg.control_dt) % 1.0
-        swing = 0.5 * np.clip(a[:, 3], 0, 1) * np.sin(2 * np.pi * self.tg_phase)
+        phase = (self.tg_phase[lanes] + (lo + (hi - lo) * np.clip(a[:, 2], 0, 1)) * self.cfg.control_dt) % 1.0
+        self.tg_phase[lanes] = phase
+        swing = 0.5 * np.clip(a[:, 3], 0, 1) * np.sin(2 * np.pi * phase)
         return np.clip(a[:, :2] + swing[:, None], 0.0, 1.0)
+
+    def _command(self, a, lanes):
+        """Actions `a` of `lanes` (an index array) -> their servo goals and last actions, through the trajectory
+        generator and the action filter if set."""
+        if self.cfg.tg:
+            a = self._tg_command(a, lanes)
+        if self.cfg.action_smoothing:   # the filtered command (see BalluConfig.action_smoothing)
+            b = self.cfg.action_smoothing
+            a = b * self.last_action[lanes] + (1.0 - b) * np.clip(a, 0.0, 1.0)
+        for i, goal in zip(lanes, servo_target(a).tolist()):
+            self._servo_goal[i] = goal
+        self.last_action[lanes] = a
 
     def step(self, actions):
         if not self._ready:
             raise RuntimeError("call reset() before step()")
         a = check_actions(actions, self.num_envs, self.act_dim)
-        if self.cfg.tg:
-            a = self._tg_command(a)
-        if self.cfg.action_smoothing:   # the filtered command (see BalluConfig.action_smoothing)
-            b = self.cfg.action_smoothing
-            a = b * self.last_action + (1.0 - b) * np.clip(a, 0.0, 1.0)
-        self._servo_goal = servo_target(a).tolist()
-        self.last_action[:] = a
+        for i, row in enumerate(a.tolist()):
+            self._ep_actions[i].append(row)
+        self._command(a, np.arange(self.num_envs))
         for _ in range(self.cfg.decimation):
             self._physics_step()
         self.t += 1
@@ -1029,6 +1041,59 @@ class BalluEnv:
             obs[done] = fresh[done]
         info["levels"] = self.levels.copy()      # the level each lane plays next
         return obs, rew.astype(np.float32), terminated, truncated, info
+
+    # -- saving and restoring the lanes (ppo.train resumes a killed run exactly) --------------------------------
+    def get_state(self) -> list | None:
+        """What each lane needs to go on exactly from here, in plain types (a torch checkpoint loads them with
+        weights_only; the actions as float64 bytes): its design, level, clock, random stream and its episode's
+        actions so far. [ours] Not PyBullet's own state: saveState/restoreState does not restore contacts
+        exactly (restored onto the very world it was saved from, a run diverged within 1-2 control steps at 2 of
+        3 save points, docs/ppo_protocol "Resumed runs"). An episode depends on nothing before its start (the
+        robot is dropped from start_z, so no contact survives a reset), so set_state replays the episode (test:
+        bit for bit). None where lanes share worlds (lanes_per_world > 1: a world-mate's replay would move them)."""
+        if self.cfg.lanes_per_world != 1:
+            return None
+        return [{"id": int(self.lane_ids[i]), "design": self.designs[i].tolist(), "level": int(self.levels[i]),
+                 "t": int(self.t[i]), "ep_return": float(self.ep_return[i]), "held": int(self._held[i]),
+                 "rng": self.rngs[i].bit_generator.state,
+                 "actions": np.asarray(self._ep_actions[i], dtype=np.float64).tobytes()}
+                for i in range(self.num_envs)]
+
+    def set_state(self, lanes: list):
+        """Go on from get_state()'s output: each lane's robot is put at its episode's start and its actions
+        replayed. The env must hold the same lane ids, one per world (ValueError otherwise)."""
+        ids = [int(k) for k in self.lane_ids]
+        if [lane["id"] for lane in lanes] != ids or self.cfg.lanes_per_world != 1:
+            raise ValueError(f"saved lanes {[lane['id'] for lane in lanes]} do not match this env's lanes {ids} "
+                             f"(lanes_per_world={self.cfg.lanes_per_world}, must be 1)")
+        for i, lane in enumerate(lanes):
+            self.designs[i], self.levels[i] = lane["design"], lane["level"]
+            self._set_terrain(i, lane["level"])
+            self._load_robot(i, self.designs[i])
+            self.tg_phase[i] = 0.0
+        actions = [np.frombuffer(lane["actions"], dtype=np.float64).reshape(-1, self.act_dim).tolist()
+                   for lane in lanes]
+        self._replay(actions)
+        for i, lane in enumerate(lanes):
+            self.t[i], self.ep_return[i], self._held[i] = lane["t"], lane["ep_return"], lane["held"]
+            self.rngs[i] = np.random.default_rng(0)
+            self.rngs[i].bit_generator.state = lane["rng"]
+            self._ep_actions[i] = actions[i]
+        self._ready = True
+
+    def _replay(self, actions: list):
+        """Step lane i through actions[i] from its episode's start, the lanes in lock-step aligned at their ends:
+        a lane's world steps only over its own actions. The benchmark's counters are left as they were."""
+        counters = self.sim_seconds, self.world_steps, self.fine_steps
+        T = max(map(len, actions), default=0)
+        for k in range(T):
+            lanes = np.array([i for i, acts in enumerate(actions) if k >= T - len(acts)])
+            self._command(np.array([actions[i][k - T + len(actions[i])] for i in lanes], dtype=float), lanes)
+            self._stepping = [self._world[i] for i in lanes]
+            for _ in range(self.cfg.decimation):
+                self._physics_step()
+        self._stepping = self.worlds
+        self.sim_seconds, self.world_steps, self.fine_steps = counters
 
     def close(self):
         for world in getattr(self, "worlds", []):
@@ -1257,6 +1322,18 @@ class VecBallu:
             per.append(("reset", seed, o))
         outs = self.pool.call(_env_call, per)
         return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
+
+    def get_state(self) -> list | None:
+        """The workers' BalluEnv.get_state(), lane by lane in order (None where lanes share worlds)."""
+        parts = self._each(_env_call, "get_state")
+        return None if None in parts else [lane for part in parts for lane in part]
+
+    def set_state(self, lanes: list):
+        """BalluEnv.set_state in each worker with its lanes' saved state (any worker count: the state is per
+        lane)."""
+        if len(lanes) != self.num_envs:
+            raise ValueError(f"saved state holds {len(lanes)} lanes, this env {self.num_envs}")
+        self.pool.call(_env_call, [("set_state", [lanes[i] for i in ids]) for ids in self.splits])
 
     def step(self, actions):
         a = check_actions(actions, self.num_envs, self.act_dim)

@@ -325,9 +325,11 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
 CKPT_VERSION = 1
 
 
-def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None, ret_norm=None):
+def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None, ret_norm=None,
+                    run=None):
     """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint. `ret_norm`: the
-    return statistics of cfg.reward_norm (absent from older checkpoints: they start afresh)."""
+    return statistics of cfg.reward_norm (absent from older checkpoints: they start afresh). `run`: what an
+    unfinished run needs to go on exactly (see train); a finished run's checkpoint holds none."""
     state = {"version": CKPT_VERSION, "kind": kind, "obs_dim": int(norm.mean.shape[0]),
              "act_dim": int(policy.log_std.shape[0]), "cfg": {k: list(v) if isinstance(v, tuple) else v
                                                               for k, v in asdict(cfg).items()},
@@ -336,6 +338,8 @@ def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, 
              "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "extra": extra or {}}
     if ret_norm is not None:
         state["ret_norm"] = ret_norm.state()
+    if run is not None:
+        state["run"] = run
     tmp = f"{path}.tmp"
     torch.save(state, tmp)
     os.replace(tmp, path)
@@ -474,7 +478,8 @@ def flatten_batch(buf, adv, ret, std) -> dict:
 
 def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
     """Where a run starts: resumed from `ckpt` if it exists (random streams included), else warm-started from
-    `init_ckpt`, else fresh from `seed`. Returns (policy, norm, opt, rng, lr, steps, levels, ret_norm)."""
+    `init_ckpt`, else fresh from `seed`. Returns (policy, norm, opt, rng, lr, steps, levels, ret_norm, own):
+    `own` is the checkpoint's whole state when the run resumes from `ckpt`, else None."""
     resume = ckpt if os.path.exists(ckpt) else init_ckpt
     state = load_checkpoint(resume) if resume else None
     if resume != ckpt:
@@ -494,16 +499,17 @@ def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
     else:
         levels = np.full(env.num_envs, start_level)
     if state is None:
-        return policy, norm, opt, rng, cfg.lr, 0, levels, ret_norm
+        return policy, norm, opt, rng, cfg.lr, 0, levels, ret_norm, None
     opt.load_state_dict(state["optimizer"])
     if "ret_norm" in state:
         ret_norm.load(state["ret_norm"])
     if len(state["levels"]):
         levels = np.resize(state["levels"].numpy(), env.num_envs)
-    if resume == ckpt:   # resuming this very run: continue its random streams too
+    own = state if resume == ckpt else None
+    if own:   # resuming this very run: continue its random streams too
         rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
-    return policy, norm, opt, rng, state["lr"], state["steps"], levels, ret_norm   # steps: from the first update ever
+    return policy, norm, opt, rng, state["lr"], state["steps"], levels, ret_norm, own   # steps: from the first update ever
 
 
 class TrainLog:
@@ -554,7 +560,12 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     warm-started from it (GES rounds: total_steps = (round + 1) x steps per round); else the policy starts
     fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
     [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
-    Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. At each checkpoint, if the mean
+    Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. [ours] While the run is
+    unfinished they also hold the env's state (if the env has get_state: each lane's design, level, clock,
+    random stream and episode so far) and the last observations, so a run killed and rerun goes on exactly as
+    if never stopped; without it a resumed run is another run (docs/ppo_protocol "Resumed runs": J moved by
+    5 cm). A finished run's checkpoint holds none: continuing it to more steps starts fresh episodes, as a
+    warm start does (the protocol's milestones, as committed). At each checkpoint, if the mean
     training level over the updates since the last one beats every earlier checkpoint's, the same state also
     goes to best_path(ckpt) [facts: the authors keep the update with the highest mean level]. [ours] The mean
     over `ckpt_every` updates, not one update's: 32 lanes' mean level moves by chance from update to update,
@@ -567,16 +578,21 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
         raise ValueError(f"total_steps={total_steps!r} must be >= 1")
     torch.set_num_threads(1)   # the env workers own the cores; the update is small
     resumed = os.path.exists(ckpt)
-    policy, norm, opt, rng, lr, steps, levels, ret_norm = start_run(kind, env, ckpt, init_ckpt, cfg, seed,
-                                                                    start_level)
+    policy, norm, opt, rng, lr, steps, levels, ret_norm, own = start_run(kind, env, ckpt, init_ckpt, cfg, seed,
+                                                                         start_level)
     if steps >= total_steps:
         return {"steps": steps, "resumed": True}
-    best = _best_so_far(ckpt)
-    obs, _ = env.reset(seed=int(rng.integers(2 ** 31)),
-                          options={"design_sampler": design_sampler, "levels": levels})
-    norm.update(obs)
+    best = own["extra"].get("best", NO_BEST) if own else NO_BEST
     T, N = cfg.num_steps, env.num_envs
     it, ep_returns, acc, window = 0, deque(maxlen=100), np.zeros(N, dtype=np.float32), []
+    obs = resume_env(env, own, design_sampler, progress)
+    if obs is not None:   # the run goes on where it was checkpointed
+        acc[:] = own["run"]["acc"].numpy()
+        ep_returns.extend(own["run"]["ep_returns"])
+    else:
+        obs, _ = env.reset(seed=int(rng.integers(2 ** 31)),
+                           options={"design_sampler": design_sampler, "levels": levels})
+        norm.update(obs)
     with TrainLog(log_csv, progress, kind, total_steps) as log:
         while steps < total_steps:
             t0 = time.time()
@@ -597,22 +613,41 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
             log.write(steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, window[-1], st, lr,
                       float(std.mean()))
             if it % cfg.ckpt_every == 0 or steps >= total_steps:
-                save = lambda path, extra: save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng,
-                                                           extra, ret_norm)
+                save = lambda path, extra, run=None: save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr,
+                                                                     levels, rng, extra, ret_norm, run)
                 if np.mean(window) > best["level"]:   # the best first: a kill in between redoes both
                     best = {"level": float(np.mean(window)), "steps": steps}
                     save(best_path(ckpt), {"best": best})
-                save(ckpt, {"best": best})
+                lanes = env.get_state() if steps < total_steps and hasattr(env, "get_state") else None
+                run = None if lanes is None else {"env": lanes, "obs": torch.from_numpy(obs.copy()),
+                                                  "acc": torch.from_numpy(acc.copy()), "ep_returns": list(ep_returns)}
+                save(ckpt, {"best": best}, run)
                 window.clear()
     return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
             "wall_s": time.time() - log.t_start, "best_level": best["level"], "best_steps": best["steps"],
             "resumed": resumed}
 
 
-def _best_so_far(ckpt: str) -> dict:
-    """{'level', 'steps'} of the best policy this run saved before (from its checkpoint), or none yet."""
-    none = {"level": -math.inf, "steps": 0}
-    return load_checkpoint(ckpt)["extra"].get("best", none) if os.path.exists(ckpt) else none
+NO_BEST = {"level": -math.inf, "steps": 0}   # no best policy saved yet
+
+
+def resume_env(env, own, design_sampler, progress):
+    """Put `env` back where the resumed run's checkpoint `own` left it and return the last observations; None
+    where the run starts fresh episodes instead: no checkpoint of its own, one without the env's state (a
+    finished run's, an older one's), or an env of other lanes (said in a progress line)."""
+    run = own.get("run") if own else None
+    if run is None or not hasattr(env, "set_state"):
+        return None
+    try:
+        env.set_design_sampler(design_sampler)
+        env.set_state(run["env"])
+    except ValueError as e:
+        if progress:
+            progress(f"resumed at {own['steps']:,} steps with fresh episodes: {e}")
+        return None
+    if progress:
+        progress(f"resumed exactly at {own['steps']:,} steps (each lane's episode so far replayed)")
+    return run["obs"].numpy().copy()
 
 
 def plot_learning_curve(log_csv: str, path: str, title: str = ""):

@@ -107,9 +107,9 @@ def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset:
                  workers: int, label: str) -> str:
     """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
 
-    A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates): that continuation
-    restarts episodes, so it is close to, not bit-identical with, an uninterrupted run. A damaged checkpoint is
-    moved aside and the policy retrained from scratch (redo_if_damaged)."""
+    A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates), its lanes' episodes
+    replayed, so it ends bit-identical with an uninterrupted run. A damaged checkpoint is moved aside and the
+    policy retrained from scratch (redo_if_damaged)."""
     os.makedirs(folder, exist_ok=True)
     ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
     have = redo_if_damaged(ckpt, ckpt_steps, "ppo.py checkpoint", f"retraining policy {label or folder}") or 0

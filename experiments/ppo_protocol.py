@@ -280,9 +280,10 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
 
 def kill_resumes(log_csv: str, milestones) -> list:
     """Control steps at which a run went on from a checkpoint other than a milestone's, i.e. after a kill
-    (runkit.logs.resume_points: fresh episodes from there on, so not an uninterrupted run's numbers; measured:
-    lr_cap obstacle seed 2 resumed at 368,640 steps scored 15.4 cm at 2 M, uninterrupted 19.5, docs/ppo_protocol).
-    Going on from a milestone's checkpoint is the protocol's own schedule, the same for every run."""
+    (runkit.logs.resume_points). A run trained before ppo.train kept the lanes' state (2026-11-27) started fresh
+    episodes there, so not an uninterrupted run's numbers (measured: lr_cap obstacle seed 2 resumed at 368,640
+    steps scored 15.4 cm at 2 M, uninterrupted 19.5, docs/ppo_protocol); a later one resumed exactly. Going on
+    from a milestone's checkpoint is the protocol's own schedule, the same for every run."""
     return resume_points(log_csv, planned=milestones) if os.path.exists(log_csv) else []
 
 
@@ -290,7 +291,8 @@ def _resume_lines(out, runs, milestones) -> str:
     """One line naming the runs a kill interrupted, if any."""
     hit = [f"{s} {t} seed {seed} at {', '.join(f'{p:,}' for p in ps)} steps" for s, t, seed in runs
            if (ps := kill_resumes(os.path.join(out, s, t, f"seed{seed}", "log.csv"), milestones))]
-    return ("Resumed after a kill (fresh episodes from that checkpoint on: not an uninterrupted run's numbers): "
+    return ("Resumed after a kill (a run trained before 2026-11-27 started fresh episodes there: not an "
+            "uninterrupted run's numbers; later ones resume exactly): "
             + "; ".join(hit) + ".\n") if hit else ""
 
 

@@ -52,9 +52,9 @@ def train_seconds(log_csv: str) -> float:
 def resume_points(log_csv: str, planned=()) -> list:
     """Control steps each resumed attempt went on from (its checkpoint's): where wall_s starts again, one update
     before that attempt's first row; without those at a `planned` step (the first whole update at or past it: a
-    schedule's own continuation). ppo.train resumes the policy, optimiser, normaliser, levels and random streams,
-    not the env: every lane starts a fresh episode there, so a run resumed mid-way gives other numbers than an
-    uninterrupted one."""
+    schedule's own continuation). Before ppo.train saved the lanes' state in its checkpoints (2026-11-27), every
+    lane started a fresh episode there, so a run resumed mid-way gave other numbers than an uninterrupted one;
+    since, a resume is exact."""
     log = read_log(log_csv)
     steps, wall = log["steps"].astype(int), log["wall_s"]
     if len(steps) < 2:
