@@ -69,7 +69,7 @@ from report.tables import (GAIT_FEATURES, md_table, report_claims, report_cost, 
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_output, git_commit, open_output
-from runkit.logs import train_seconds, trim_log
+from runkit.logs import read_log, train_seconds, trim_log
 from runkit.pool import (GatedExecutor, StopBy, clock_text, close_dask_clients, dask_client, dask_executor,
                          exit_with_parent, stop_time)
 from runkit.progress import Progress, Throttled, eta_s, run_eta, say
@@ -1088,6 +1088,43 @@ def score_text(p: Preset) -> str:
     return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
 
 
+def ppo_rate(run: Run) -> tuple:
+    """(control steps/s per PPO job, training logs read) over every training this run made: the harmonic mean of
+    its logs' per-update rates (every update of a policy trains the same batch), so the plan's TRAIN_RATE can be
+    checked against how fast this machine ran. A damaged log is skipped."""
+    rates = []
+    for path in glob.glob(run.path("**", "log.csv"), recursive=True):
+        try:
+            rates.append(read_log(path)["steps_per_s"])
+        except (ValueError, KeyError, OSError):
+            continue
+    r = np.concatenate(rates) if rates else np.zeros(0)
+    r = r[np.isfinite(r) & (r > 0)]
+    return (len(r) / np.sum(1.0 / r) if len(r) else float("nan")), len(rates)
+
+
+def report_wall(run: Run, times: dict) -> list:
+    """Each stage's wall time beside --plan's at this attempt's workers, and the PPO rate the run trained at
+    beside the plan's: a stage over its plan on a machine running below the plan's rates says the machine, not
+    the plan, was slow (docs/presets.md: this machine drifts +-20 % and more)."""
+    planned = plan(run.preset, max(1, run.workers))
+    rows = [[n, f"{times[n]:.0f} s", f"{3600 * planned[n]['hours']:.0f} s" if n in planned else "-",
+             f"{times[n] / (3600 * planned[n]['hours']):.2f}" if planned.get(n, {}).get("hours") else "-"]
+            for n in STAGES if n in times]
+    total = sum(times.values())   # the plan over the same stages, so a run under way compares like with like
+    total_plan = 3600 * sum(v["hours"] for n, v in planned.items() if n in times)
+    rows.append(["total", f"{total:.0f} s = {total / 3600:.2f} h", f"{total_plan:.0f} s = {total_plan / 3600:.2f} h",
+                 f"{total / total_plan:.2f}" if total_plan else "-"])
+    rate, logs = ppo_rate(run)
+    lines = ["## Wall time per stage (all attempts)", "",
+             f"Plan: `python run_all.py --preset {run.preset.name} --plan --workers {run.workers}` (GES at its round "
+             f"cap; at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control steps/s per core)."]
+    if logs:
+        lines += [f"PPO trained at {rate:.0f} control steps/s per job in this run ({logs} training logs; harmonic "
+                  f"mean of their updates), {100 * rate / TRAIN_RATE:.0f} % of the plan's {TRAIN_RATE:.0f}."]
+    return lines + [""] + md_table(["stage", "wall time", "plan", "measured / plan"], rows)
+
+
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
@@ -1101,8 +1138,7 @@ def report(run: Run, manifest: dict) -> str:
     for name, write in sections:
         if results[name]:
             lines += write(results[name])
-    lines += ["## Wall time per stage (all attempts)", ""] + md_table(
-        ["stage", "wall time"], [[n, f"{times[n]:.0f} s"] for n in STAGES if n in times])
+    lines += report_wall(run, times)
     text = "\n".join(lines).rstrip("\n") + "\n"
     tmp = run.path(f"REPORT.md.tmp{os.getpid()}")   # atomic, as every write of a run
     with open(tmp, "w") as fh:
@@ -1330,8 +1366,9 @@ def parse(argv):
     ap.add_argument("--fresh", action="store_true", help="delete this run's earlier results and start over")
     ap.add_argument("--stop-by", default=None, metavar="HH:MM",
                     help="no job starts after this time of day (its next occurrence); jobs under way finish, then "
-                         "the run stops (exit 3) and a rerun goes on with exactly an uninterrupted run's numbers, "
-                         "which a kill during a PPO training would change")
+                         "the run stops (exit 3); a rerun goes on with an uninterrupted run's numbers, as after a kill, "
+                         "but without redoing the work a kill cuts off (a training's updates since its last "
+                         "checkpoint, a score under way)")
     ap.add_argument("--executor", default="process", choices=("process", "dask"),
                     help="independent jobs on a local process pool (default) or a Dask cluster")
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",

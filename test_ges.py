@@ -2147,11 +2147,12 @@ def _numbers_only(obj):
 
 
 def _report_numbers(path):
-    """REPORT.md without the lines that hold wall times, compute times (core-s) and what follows from them (the
-    cost reduction, the break-even trial count), or the commit / code hash (which change when someone edits the tree during the test;
-    manifest checks cover them)."""
+    """REPORT.md without the lines that hold wall times, rates (steps/s), compute times (core-s) and what follows
+    from them (the cost reduction, the break-even trial count), or the commit / code hash (which change when someone
+    edits the tree during the test; manifest checks cover them)."""
     lines = read_text(path).splitlines()
-    return [ln for ln in lines if not re.search(r"wall|core-s|reduction|break-even|\b\d+ s\b|git commit", ln, re.I)]
+    return [ln for ln in lines
+            if not re.search(r"wall|steps/s|core-s|reduction|break-even|\b\d+ s\b|git commit", ln, re.I)]
 
 
 @pytest.fixture(scope="module")
@@ -2168,6 +2169,8 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
     for head in ("## Table I", "## Table II", "### Peaks found by TPE", "### Head-to-head", "## Table III",
                  "## K sensitivity", "## Computational cost", "## Figures", "## Wall time per stage"):
         assert head in rep, head
+    assert re.search(r"PPO trained at \d+ control steps/s per job in this run \(\d+ training logs", rep)
+    assert re.search(r"\| total \| \d+ s = [\d.]+ h \| \d+ s = [\d.]+ h \| [\d.]+ \|", rep)   # beside the plan
     assert "(36.9)" in rep and "(35.2)" in rep and "37 %" in rep          # paper numbers beside ours
     assert "nan" not in rep.lower() and " - (" not in rep                # every "ours" cell was measured
     res = read_json(os.path.join(smoke_run, "results.json"))
@@ -2812,6 +2815,21 @@ def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
     assert hours(cost_trials=3, tpe_startup=3) == pytest.approx(2 * one)
     assert hours(cost_trials=3, tpe_startup=1) == pytest.approx(3 * one)
     assert hours(cost_trials=4, tpe_startup=10) == pytest.approx(2 * one)
+
+
+def test_run_all_ppo_rate_is_total_steps_over_total_time(tmp_path):
+    """The report's PPO rate is every training's steps over its time: with one batch per update, the harmonic mean
+    of the logs' update rates (updates at 100, 300 and 200 steps/s of 600 steps: 1,800 steps in 11 s). A damaged
+    log is skipped, not fatal."""
+    for name, rates in (("a", (100.0, 300.0)), ("b", (200.0,))):
+        os.makedirs(tmp_path / "policies" / name)
+        with open(tmp_path / "policies" / name / "log.csv", "w") as fh:
+            fh.write("steps,wall_s,steps_per_s\n" + "".join(f"{600 * (i + 1)},1.0,{r}\n" for i, r in enumerate(rates)))
+    os.makedirs(tmp_path / "ges" / "x")
+    (tmp_path / "ges" / "x" / "log.csv").write_text("steps,wall_s,steps_per_s\n600,1.0\n")   # a short row
+    run = run_all.Run(out=str(tmp_path), preset=run_all.SMOKE, seed=0, workers=2)
+    rate, logs = run_all.ppo_rate(run)
+    assert rate == pytest.approx(1800 / (600 / 100 + 600 / 300 + 600 / 200)) and logs == 2
 
 
 def test_report_cost_claim_needs_a_saving_beyond_the_drift():
