@@ -150,6 +150,7 @@ class TrainSpecialist:
     preset: Preset
     warm_ckpt: str = ""   # Preset.ges_warm_start: round 0 starts from this policy (the cell's e2e MLP)
     first_round_steps: int | None = None   # round 0's steps (None: round_steps); Preset.ges_first_round_steps
+    label: str = ""   # progress lines' prefix (the GES run's name); "" trains silently
 
     def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
         log = ckpt_out + ".csv"
@@ -166,7 +167,8 @@ class TrainSpecialist:
         try:
             ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + steps,
                       ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed,
-                      start_level=start_levels(self.task, self.preset), log_csv=log, progress=None)
+                      start_level=start_levels(self.task, self.preset), log_csv=log,
+                      progress=Throttled(f"{self.label} specialist {k} round {round}") if self.label else None)
         finally:
             env.close()
 
@@ -517,8 +519,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
 
     warm = (ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule)
             if p.ges_warm_start else "")
-    res = ges.run_ges(space, TrainSpecialist(task, space, p.ges_round_steps, p, warm, p.ges_first_round_steps),
-                      ScoreSpecialist(task, space, p, probe=True), run_dir, config,
+    trainer = TrainSpecialist(task, space, p.ges_round_steps, p, warm, p.ges_first_round_steps, label=name)
+    res = ges.run_ges(space, trainer, ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
     return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
             "rounds": res.rounds, "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
@@ -1366,8 +1368,8 @@ def parse(argv):
     ap.add_argument("--fresh", action="store_true", help="delete this run's earlier results and start over")
     ap.add_argument("--stop-by", default=None, metavar="HH:MM",
                     help="no job starts after this time of day (its next occurrence); jobs under way finish, then "
-                         "the run stops (exit 3); a rerun goes on with an uninterrupted run's numbers, as after a kill, "
-                         "but without redoing the work a kill cuts off (a training's updates since its last "
+                         "the run stops (exit 3); a rerun goes on with an uninterrupted run's numbers, as after a "
+                         "kill, but without redoing the work a kill cuts off (a training's updates since its last "
                          "checkpoint, a score under way)")
     ap.add_argument("--executor", default="process", choices=("process", "dask"),
                     help="independent jobs on a local process pool (default) or a Dask cluster")
