@@ -1093,12 +1093,12 @@ def score_text(p: Preset) -> str:
 def ppo_rate(run: Run) -> tuple:
     """(control steps/s per PPO job, training logs read) over every training this run made: the harmonic mean of
     its logs' per-update rates (every update of a policy trains the same batch), so the plan's TRAIN_RATE can be
-    checked against how fast this machine ran. A damaged log is skipped."""
+    checked against how fast this machine ran. Other CSV files and damaged logs are skipped."""
     rates = []
-    for path in glob.glob(run.path("**", "log.csv"), recursive=True):
+    for path in glob.glob(run.path("**", "*.csv"), recursive=True):   # policies' log.csv, specialists' *.ckpt.csv
         try:
             rates.append(read_log(path)["steps_per_s"])
-        except (ValueError, KeyError, OSError):
+        except (ValueError, KeyError, OSError):   # not a training log, or a damaged one
             continue
     r = np.concatenate(rates) if rates else np.zeros(0)
     r = r[np.isfinite(r) & (r > 0)]

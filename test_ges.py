@@ -2819,17 +2819,19 @@ def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
 
 def test_run_all_ppo_rate_is_total_steps_over_total_time(tmp_path):
     """The report's PPO rate is every training's steps over its time: with one batch per update, the harmonic mean
-    of the logs' update rates (updates at 100, 300 and 200 steps/s of 600 steps: 1,800 steps in 11 s). A damaged
-    log is skipped, not fatal."""
+    of the logs' update rates (updates at 100, 300, 200 and a specialist's 400 steps/s of 600 steps: 2,400 steps in
+    12.5 s). A damaged log or another CSV file is skipped, not fatal."""
     for name, rates in (("a", (100.0, 300.0)), ("b", (200.0,))):
         os.makedirs(tmp_path / "policies" / name)
         with open(tmp_path / "policies" / name / "log.csv", "w") as fh:
             fh.write("steps,wall_s,steps_per_s\n" + "".join(f"{600 * (i + 1)},1.0,{r}\n" for i, r in enumerate(rates)))
-    os.makedirs(tmp_path / "ges" / "x")
+    os.makedirs(tmp_path / "ges" / "x" / "ckpt")
+    (tmp_path / "ges" / "x" / "ckpt" / "spec0_round00.ckpt.csv").write_text("steps,wall_s,steps_per_s\n600,1,400\n")
     (tmp_path / "ges" / "x" / "log.csv").write_text("steps,wall_s,steps_per_s\n600,1.0\n")   # a short row
+    (tmp_path / "test_scores.csv").write_text("task,J\nobstacle,12.5\n")                      # not a training log
     run = run_all.Run(out=str(tmp_path), preset=run_all.SMOKE, seed=0, workers=2)
     rate, logs = run_all.ppo_rate(run)
-    assert rate == pytest.approx(1800 / (600 / 100 + 600 / 300 + 600 / 200)) and logs == 2
+    assert rate == pytest.approx(2400 / (600 / 100 + 600 / 300 + 600 / 200 + 600 / 400)) and logs == 3
 
 
 def test_report_cost_claim_needs_a_saving_beyond_the_drift():
