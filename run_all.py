@@ -1109,14 +1109,14 @@ def report_wall(run: Run, times: dict) -> list:
     """Each stage's wall time beside --plan's at this attempt's workers, and the PPO rate the run trained at
     beside the plan's: a stage over its plan on a machine running below the plan's rates says the machine, not
     the plan, was slow (docs/presets.md: this machine drifts +-20 % and more)."""
-    planned = plan(run.preset, max(1, run.workers))
-    rows = [[n, f"{times[n]:.0f} s", f"{3600 * planned[n]['hours']:.0f} s" if n in planned else "-",
-             f"{times[n] / (3600 * planned[n]['hours']):.2f}" if planned.get(n, {}).get("hours") else "-"]
+    plan_s = {n: 3600 * v["hours"] for n, v in plan(run.preset, max(1, run.workers)).items()}
+    ratio = lambda s, p: f"{s / p:.2f}" if p else "-"   # noqa: E731
+    rows = [[n, f"{times[n]:.0f} s", f"{plan_s[n]:.0f} s" if n in plan_s else "-", ratio(times[n], plan_s.get(n))]
             for n in STAGES if n in times]
     total = sum(times.values())   # the plan over the same stages, so a run under way compares like with like
-    total_plan = 3600 * sum(v["hours"] for n, v in planned.items() if n in times)
+    total_plan = sum(v for n, v in plan_s.items() if n in times)
     rows.append(["total", f"{total:.0f} s = {total / 3600:.2f} h", f"{total_plan:.0f} s = {total_plan / 3600:.2f} h",
-                 f"{total / total_plan:.2f}" if total_plan else "-"])
+                 ratio(total, total_plan)])
     rate, logs = ppo_rate(run)
     lines = ["## Wall time per stage (all attempts)", "",
              f"Plan: `python run_all.py --preset {run.preset.name} --plan --workers {run.workers}` (GES at its round "
