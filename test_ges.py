@@ -786,9 +786,19 @@ class PointMassLevels(PointMass):
     def step(self, a):
         out = super().step(a)
         self.calls += 1
-        u = math.ceil(self.calls / 40)
-        out[-1]["levels"] = np.full(self.num_envs, 5.0 if u == 12 else -float((u - 14) ** 2))
+        out[-1]["levels"] = np.full(self.num_envs, self.level(math.ceil(self.calls / 40)))
         return out
+
+    def level(self, u):
+        return 5.0 if u == 12 else -float((u - 14) ** 2)
+
+
+class PointMassFalls(PointMassLevels):
+    """Levels |u - 12|: high at the start (lanes started spread up to the score's level), down to 0 at update
+    12 while the policy learns, back up to 6 at update 18, never above the first updates' 11."""
+
+    def level(self, u):
+        return float(abs(u - 12))
 
 
 def test_ppo_keeps_the_policy_of_the_best_level_and_a_resumed_run_carries_it(tmp_path):
@@ -817,6 +827,30 @@ def test_ppo_keeps_the_policy_of_the_best_level_and_a_resumed_run_carries_it(tmp
     assert ppo.scored_path(str(tmp_path / "none.pt")) == str(tmp_path / "none.pt")   # trained before: the last
     with pytest.raises(ValueError, match="rule='top' must be 'best' or 'last'"):
         ppo.scored_path(ck, "top")
+
+
+def test_ppo_best_policy_comes_after_the_lowest_level_while_the_first_is_unbeaten(tmp_path):
+    """3-update windows of |u - 12|: 10, 7, 4, 1, 2, 5 at updates 3-18. No window beats the first (10), so the
+    high start is not skill: the best is the last window past the lowest (update 18, level 5), not the first
+    (the plain rule's, update 3). A run stopped at update 6 (best: 7 there) and resumed carries the first
+    window's level: a record without it would keep update 6 (no later window beats 7). (The point mass keeps no
+    lane state: the resumed run's policy is another one, its best's steps the same.)"""
+    cfg = ppo.PPOConfig(num_envs=16, num_steps=40, lr=3e-4, ckpt_every=3)
+    ck, ck2 = str(tmp_path / "a.pt"), str(tmp_path / "b.pt")
+    out = ppo.train("mlp", PointMassFalls(16), None, 18 * cfg.batch, ck, cfg, seed=0, progress=None)
+    assert (out["best_steps"], out["best_level"]) == (18 * cfg.batch, 5.0), out
+    assert ppo.load_checkpoint(ppo.best_path(ck))["extra"]["best"] == {"level": 5.0, "steps": 18 * cfg.batch,
+                                                                       "first": 10.0, "low": 1.0}
+    ppo.train("mlp", PointMassFalls(16), None, 6 * cfg.batch, ck2, cfg, seed=0, progress=None)
+    assert ppo.load_checkpoint(ppo.best_path(ck2))["steps"] == 6 * cfg.batch
+    out = ppo.train("mlp", PointMassFalls(16, first_update=6), None, 18 * cfg.batch, ck2, cfg, seed=0,
+                    progress=None)
+    assert out["resumed"] is True and out["best_steps"] == 18 * cfg.batch, out
+    assert ppo.load_checkpoint(ppo.best_path(ck2))["extra"]["best"]["first"] == 10.0
+    # the rule itself: a level that beats the first window ends the resets; an older record has no first
+    beaten = {"level": 12.0, "steps": 9, "first": 10.0, "low": 4.0}
+    assert ppo.next_best(beaten, 3.0, 12) is None and ppo.next_best(beaten, 13.0, 12)["steps"] == 12
+    assert ppo.next_best({"level": 7.0, "steps": 6}, 1.0, 12) is None
 
 
 def test_ppo_killed_on_ballu_and_rerun_equals_uninterrupted(tmp_path):
