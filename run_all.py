@@ -486,6 +486,22 @@ def ges_name(task: str, sp: str, K: int, init: str) -> str:
     return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"
 
 
+def ges_round_eta(times: dict, rounds_left: int, first_steps: int | None, round_steps: int) -> str:
+    """'eta <= Xs' for a GES run's rounds left (a run may stop early on coverage), each training round_steps
+    per specialist: at the pace of the rounds of that size so far; before any, the first training round's time
+    scaled by steps ('~': its probes do not scale; quick's first round trains 20x a later one's steps).
+    `times`: seconds per saved round, by its number as str; round 0 is the initialisation."""
+    if rounds_left <= 0:
+        return "eta 0s"
+    same = first_steps in (None, round_steps)
+    like = [v for k, v in times.items() if int(k) >= 2 or (k == "1" and same)]
+    if like:
+        return f"eta <= {eta_s(sum(like), len(like), rounds_left):.0f}s"
+    if "1" in times:
+        return f"eta <= ~{times['1'] * round_steps / first_steps * rounds_left:.0f}s"
+    return "eta -"
+
+
 def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: threading.Event | None = None) -> dict:
     """Run (or resume, or load) one GES stage 1; returns its summary with the wall time of its rounds. A set
     `stop` ends it after its next saved round (another run beside it failed)."""
@@ -509,9 +525,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
         times[str(r)] = time.time() - last[0]
         last[0] = time.time()
         write_json(times_path, times)
-        done = [v for k, v in times.items() if k != "0"]   # round 0 is the initialisation
-        eta = eta_s(sum(done), len(done), config.max_rounds - r)
-        eta = "eta -" if eta is None else f"eta <= {eta:.0f}s"
+        eta = ges_round_eta(times, config.max_rounds - r, p.ges_first_round_steps, p.ges_round_steps)
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
         if stop is not None and stop.is_set():

@@ -2747,6 +2747,17 @@ def test_runkit_eta_against_schedules_with_known_answers(capsys):
     assert 49_500 < eta < 50_000 and "x 9.9" in text, text
 
 
+def test_run_all_ges_round_eta_paces_later_rounds_by_their_own_size():
+    """Quick's first training round trains 200k steps per specialist, the later ones 10k: after round 1 (2,000 s)
+    one round left is ~100 s, not 2,000; after round 2 (150 s) the same-sized round sets the pace; rounds all
+    alike pace on every training round; round 0 (the initialisation) never counts."""
+    eta = run_all.ges_round_eta
+    assert eta({"0": 5.0, "1": 2000.0}, 1, 200_000, 10_000) == "eta <= ~100s"
+    assert eta({"0": 5.0, "1": 2000.0, "2": 150.0}, 2, 200_000, 10_000) == "eta <= 300s"
+    assert eta({"0": 5.0, "1": 100.0, "2": 120.0}, 2, None, 10_000) == "eta <= 220s"
+    assert eta({"0": 5.0}, 3, None, 10_000) == "eta -" and eta({"0": 5.0, "1": 9.0}, 0, None, 1) == "eta 0s"
+
+
 def test_runkit_progress_counts_parallel_and_loaded_units(capsys):
     """With 2 units at a time, the first finished after 100 s means ~2 per 100 s: 9 left -> ~450 s, not 900.
     A resumed stage's units loaded at once (within LOADED_S) do not set the pace: 100 s for unit 3 -> 700 s."""
