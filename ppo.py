@@ -638,7 +638,7 @@ def next_best(best: dict, level: float, steps: int) -> dict | None:
     stays. [facts] The highest window wins. [ours] Until a window beats the run's first one, a new lowest window
     takes the best instead: lanes that start spread up to the score's level (Preset.ppo_start "task") give the
     untrained first windows a high level that the curriculum then pulls down, and the plain rule kept that
-    untrained policy (quick preset, ramp, 380k steps: 7 of 10 cells scored 14.97 deg, failing at the start;
+    untrained policy (quick preset, ramp, 380k steps: 7 of 10 score sets were 14.97 deg, failing at once;
     docs/ppo_protocol "The best policy"). The same holds for a warm start (a GES round), whose lanes carry
     levels earned on other designs. A run whose level ever beats its first window keeps the plain rule's best
     exactly; a record without "first" (an older checkpoint's) keeps the plain rule."""
