@@ -498,7 +498,7 @@ def ges_round_eta(times: dict, rounds_left: int, first_steps: int | None, round_
     if like:
         return f"eta <= {eta_s(sum(like), len(like), rounds_left):.0f}s"
     if "1" in times:
-        return f"eta <= ~{times['1'] * round_steps / first_steps * rounds_left:.0f}s"
+        return f"eta <= ~{eta_s(times['1'] * round_steps / first_steps, 1, rounds_left):.0f}s"
     return "eta -"
 
 
