@@ -142,8 +142,11 @@ class TrainSpecialist:
 
     Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
     and step count carry over) and trains to first_round_steps + r * round_steps control steps. A repeated
-    (interrupted) round keeps a specialist whose output reached its steps (it trained in one go: see below) and
-    first deletes a partial one, so the round is identical to an uninterrupted one."""
+    (interrupted) round keeps a specialist whose output reached its steps, resumes one killed mid-way from its
+    last checkpoint (its lanes' episodes replayed, as train_policy does: at most 10 updates are lost, where
+    retraining lost the whole round, ~35 min per kill in the overnight preset), and retrains one whose
+    checkpoint cannot go on exactly (no lanes' state: an older code's); the round is identical to an
+    uninterrupted one."""
     task: str
     space: ballu.DesignSpace
     round_steps: int
@@ -158,10 +161,13 @@ class TrainSpecialist:
         steps = specialist_steps(self.first_round_steps, self.round_steps, round + 1)
         have = redo_if_damaged(ckpt_out, ckpt_steps, "ppo.py checkpoint", "retraining the specialist") or 0
         if have >= base + steps:
-            return   # done in an earlier attempt of this round (a stopped run's), from start to end
-        for f in (ckpt_out, ppo.best_path(ckpt_out), log):
-            if os.path.exists(f):
-                os.remove(f)
+            return   # done in an earlier attempt of this round (a stopped run's)
+        if have and "run" in ppo.load_checkpoint(ckpt_out):
+            trim_log(log, have)   # killed mid-way: ppo.train goes on from the checkpoint's lanes
+        else:
+            for f in (ckpt_out, ppo.best_path(ckpt_out), log):
+                if os.path.exists(f):
+                    os.remove(f)
         cfg = ppo_config(self.preset)
         env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
         try:
@@ -538,8 +544,18 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
     return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
             "rounds": res.rounds, "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
-            "stage1_core_s": res.task_seconds,
+            "stage1_core_s": ges_core_seconds(run_dir),
             "mu": res.mu.tolist(), "sigma": res.sigma.tolist(), "names": list(space.names)}
+
+
+def ges_core_seconds(run_dir: str) -> float:
+    """GES stage 1's compute in core-s: its probe tasks' seconds (ges.py's state) plus its specialists'
+    training seconds from their logs (train_seconds, as the baselines'). A training task's own clock would count
+    only the attempt that finished it: a kept specialist ~0 s, a resumed one its last stretch."""
+    state = read_json(os.path.join(run_dir, ges.STATE_FILE))
+    probe = sum(sum(r["probe"]) for r in state.get("task_seconds", []))
+    logs = glob.glob(os.path.join(run_dir, ges.CKPT_DIR, "spec*_round*.ckpt.csv"))
+    return float(probe + sum(train_seconds(f) for f in sorted(logs)))
 
 
 def ges_runs(run: Run, specs: list, label: str) -> dict:

@@ -2815,7 +2815,8 @@ def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
 def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     """Preset.ges_first_round_steps [facts: the authors' first GES round is 3.2x the later ones]: round 0 trains
     to the first round's steps, round 1 adds one round's steps to that; --plan counts the same. A repeated round
-    keeps a specialist that finished and retrains one cut short."""
+    keeps a specialist that finished and retrains one cut short whose checkpoint holds no lanes' state
+    (a finished round 0's copied as round 1's: it cannot go on exactly)."""
     p = replace(run_all.SMOKE, ges_first_round_steps=192, ges_round_steps=64)
     space = run_all.space_of(p, "obstacle", "d2")
     box = ges.Box.of(space)
@@ -2831,6 +2832,48 @@ def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     assert [ppo.load_checkpoint(f)["steps"] for f in (a, b)] == [192, 256] == [p.ges_steps(1), p.ges_steps(2)]
     K = p.K_d2 + p.K_d3
     assert run_all.plan(p)["ges"]["ppo_steps"] == 2 * K * p.ges_steps(p.ges_max_rounds)
+
+
+@pytest.mark.slow
+def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypatch):
+    """A specialist killed mid-round (here in update 5 of 6; checkpoints every update) goes on from its last
+    checkpoint at the rerun: its checkpoint, best policy and learning curve equal an uninterrupted one's, and
+    ges_core_seconds counts its training once (the log's rows past the checkpoint are dropped)."""
+    p = replace(run_all.SMOKE, ges_first_round_steps=384, ges_round_steps=64)
+    monkeypatch.setattr(run_all, "ppo_config", lambda preset: replace(
+        ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout), ckpt_every=1))
+    space = run_all.space_of(p, "obstacle", "d2")
+    train = run_all.TrainSpecialist("obstacle", space, p.ges_round_steps, p, "", p.ges_first_round_steps)
+    sampler = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.1), ges.Box.of(space), seed=1)
+    a, b = (str(tmp_path / d / "ckpt" / "spec0_round00.ckpt") for d in "ab")
+    os.makedirs(os.path.dirname(a))
+    os.makedirs(os.path.dirname(b))
+    train(0, 0, sampler, None, a)
+    rollout, calls = ppo.rollout, []
+
+    def killed(*args, **kw):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt("simulated kill")
+        return rollout(*args, **kw)
+    monkeypatch.setattr(ppo, "rollout", killed)
+    with pytest.raises(KeyboardInterrupt):
+        train(0, 0, sampler, None, b)
+    assert ppo.load_checkpoint(b)["steps"] == 256 and "run" in ppo.load_checkpoint(b)
+    train(0, 0, sampler, None, b)
+    assert len(calls) == 5 + 2   # the rerun played updates 5 and 6 only
+    for x, y in ((a, b), (ppo.best_path(a), ppo.best_path(b))):
+        sx, sy = ppo.load_checkpoint(x), ppo.load_checkpoint(y)
+        assert sx["steps"] == sy["steps"] and sx["extra"] == sy["extra"]
+        assert all(torch.equal(sx["policy"][k], sy["policy"][k]) for k in sx["policy"])
+    la, lb = (run_all.read_log(f + ".csv") for f in (a, b))
+    assert la["steps"].tolist() == lb["steps"].tolist() == [64 * i for i in range(1, 7)]
+    assert la["mean_level"].tolist() == lb["mean_level"].tolist()
+    wall = lb["wall_s"].astype(float)
+    assert wall[4] < wall[3]   # the rerun's stretch starts again
+    state = {"task_seconds": [{"train": [0.0], "probe": [1.5]}]}
+    run_all.write_json(str(tmp_path / "b" / "state.json"), state)
+    assert run_all.ges_core_seconds(str(tmp_path / "b")) == pytest.approx(1.5 + wall[3] + wall[5])
 
 
 def test_run_all_plan_packs_specialists_as_the_stages_run_them():
