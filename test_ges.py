@@ -2442,6 +2442,31 @@ def test_report_cross_seed_claims_hold_only_where_every_run_agrees(tmp_path):
 
 
 
+def test_report_cross_seed_splits_ges_gap_by_territory(tmp_path):
+    """territory_split: GES - e2e MLP over the test designs inside GES's final territories (max_k f_k > e^-2,
+    the 2-sigma contour) and outside, per cell. One territory at gcr 0.8 +- 0.01, spcf 0.05 +- 0.01: designs 1
+    and 1.9 sigma away are inside, 2.1 sigma away outside; a D3 design's l is read from l_f."""
+    from report import cross_seed
+    folder = tmp_path / "run"
+    folder.mkdir()
+    ges_runs = {"obstacle-d2-K1-fps-lloyd": {"names": ["gcr", "spcf"], "mu": [[0.8, 0.05]], "sigma": [[0.01, 0.01]]},
+                "ramp-d3-K1-fps-lloyd": {"names": ["gcr", "spcf", "l"], "mu": [[0.8, 0.05, 0.3]],
+                                         "sigma": [[0.01, 0.01, 0.01]]}}
+    rows = [("obstacle", "d2", 0.45, 0.81, 0.05, 10, 13), ("obstacle", "d2", 0.45, 0.8, 0.069, 10, 11),
+            ("obstacle", "d2", 0.45, 0.8, 0.071, 10, 4), ("ramp", "d3", 0.321, 0.8, 0.05, 20, 20),
+            ("ramp", "d3", 0.3, 0.8, 0.05, 20, 25)]
+    with open(folder / "test_scores.csv", "w", newline="") as fh:
+        w = csv_module.writer(fh)
+        w.writerow(["task", "space", "l_f", "l_t", "gcr", "spcf", "baseline", "mlp", "moe", "ges"])
+        w.writerows([[t, s, l, l, g, p, 0, m, 0, j] for t, s, l, g, p, m, j in rows])
+    run = {"stages": {"table2": {"cells": {}}, "ges": ges_runs}}
+    split = cross_seed.territory_split(run, str(folder))
+    assert split == {"obstacle-d2": [(2.0, 2), (-6.0, 1)], "ramp-d3": [(5.0, 1), (0.0, 1)]}
+    assert cross_seed.territory_split(run, str(tmp_path)) == {}   # no test_scores.csv
+    table = cross_seed.split_table([run], ["seed 0"], [str(folder)])
+    assert "| obstacle D2 | +2.0 (2) / -6.0 (1) |" in table and "| ramp D2 | - |" in table
+
+
 def raw_numbers(out: str) -> dict:
     """Every raw number of a run: score sets (J and every episode's final pelvis x), GES states (coverage,
     territories, probes, winners per round), TPE trials (x, y), and a hash of every policy checkpoint's weights
