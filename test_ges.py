@@ -2861,14 +2861,18 @@ def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
 
 @pytest.mark.slow
 def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypatch):
-    """A specialist killed mid-round (here in update 5 of 6; checkpoints every update) goes on from its last
-    checkpoint at the rerun: its checkpoint, best policy and learning curve equal an uninterrupted one's, and
-    ges_core_seconds counts its training once (the log's rows past the checkpoint are dropped)."""
+    """A specialist warm-started from a policy (as ges_warm_start does) and killed mid-round (here in update 5
+    of 6; checkpoints every update) goes on from its last checkpoint at the rerun: its checkpoint, best policy
+    and learning curve equal an uninterrupted one's, and ges_core_seconds counts its training once (the log's
+    rows past the checkpoint are dropped)."""
     p = replace(run_all.SMOKE, ges_first_round_steps=384, ges_round_steps=64)
     monkeypatch.setattr(run_all, "ppo_config", lambda preset: replace(
         ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout), ckpt_every=1))
     space = run_all.space_of(p, "obstacle", "d2")
-    train = run_all.TrainSpecialist("obstacle", space, p.ges_round_steps, p, "", p.ges_first_round_steps)
+    warm = str(tmp_path / "warm.pt")
+    wide = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.3), ges.Box.of(space), seed=5)
+    run_all.TrainSpecialist("obstacle", space, 128, p)(0, 0, wide, None, warm)   # a 128-step policy
+    train = run_all.TrainSpecialist("obstacle", space, p.ges_round_steps, p, warm, p.ges_first_round_steps)
     sampler = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.1), ges.Box.of(space), seed=1)
     a, b = (str(tmp_path / d / "ckpt" / "spec0_round00.ckpt") for d in "ab")
     os.makedirs(os.path.dirname(a))
@@ -2884,7 +2888,7 @@ def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypat
     monkeypatch.setattr(ppo, "rollout", killed)
     with pytest.raises(KeyboardInterrupt):
         train(0, 0, sampler, None, b)
-    assert ppo.load_checkpoint(b)["steps"] == 256 and "run" in ppo.load_checkpoint(b)
+    assert ppo.load_checkpoint(b)["steps"] == 128 + 256 and "run" in ppo.load_checkpoint(b)
     train(0, 0, sampler, None, b)
     assert len(calls) == 5 + 2   # the rerun played updates 5 and 6 only
     for x, y in ((a, b), (ppo.best_path(a), ppo.best_path(b))):
@@ -2892,7 +2896,7 @@ def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypat
         assert sx["steps"] == sy["steps"] and sx["extra"] == sy["extra"]
         assert all(torch.equal(sx["policy"][k], sy["policy"][k]) for k in sx["policy"])
     la, lb = (run_all.read_log(f + ".csv") for f in (a, b))
-    assert la["steps"].tolist() == lb["steps"].tolist() == [64 * i for i in range(1, 7)]
+    assert la["steps"].tolist() == lb["steps"].tolist() == [128 + 64 * i for i in range(1, 7)]
     assert la["mean_level"].tolist() == lb["mean_level"].tolist()
     wall = lb["wall_s"].astype(float)
     assert wall[4] < wall[3]   # the rerun's stretch starts again
