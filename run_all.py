@@ -159,11 +159,11 @@ class TrainSpecialist:
         log = ckpt_out + ".csv"
         base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
         steps = specialist_steps(self.first_round_steps, self.round_steps, round + 1)
-        have = redo_if_damaged(ckpt_out, ckpt_steps, "ppo.py checkpoint", "retraining the specialist") or 0
-        if have >= base + steps:
+        own = redo_if_damaged(ckpt_out, ppo.load_checkpoint, "ppo.py checkpoint", "retraining the specialist")
+        if own and own["steps"] >= base + steps:
             return   # done in an earlier attempt of this round (a stopped run's)
-        if have and "run" in ppo.load_checkpoint(ckpt_out):
-            trim_log(log, have)   # killed mid-way: ppo.train goes on from the checkpoint's lanes
+        if own and "run" in own:
+            trim_log(log, own["steps"])   # killed mid-way: ppo.train goes on from the checkpoint's lanes
         else:
             for f in (ckpt_out, ppo.best_path(ckpt_out), log):
                 if os.path.exists(f):
