@@ -291,7 +291,8 @@ def method_J(run: Run, method: str, task: str, sp: str, label: str = "", trace: 
 @dataclass(frozen=True)
 class Preset:
     """All budgets of a run. `ppo_steps` is THE per-policy PPO budget (baseline, e2e MLP/MoE, per-design BO);
-    a GES specialist trains `ges_round_steps` per round, cumulative (round + 1) * ges_round_steps."""
+    a GES specialist trains `ges_first_round_steps` in round 0 and `ges_round_steps` in each later round
+    (`ges_steps`)."""
     name: str
     ppo_steps: int              # control steps per policy (the lead tunes this one)
     ges_round_steps: int        # control steps per GES specialist per round (after the first)
