@@ -853,12 +853,15 @@ def test_ppo_best_policy_comes_after_the_lowest_level_while_the_first_is_unbeate
     assert ppo.next_best({"level": 7.0, "steps": 6}, 1.0, 12) is None
 
 
-def test_ppo_killed_on_ballu_and_rerun_equals_uninterrupted(tmp_path):
+@pytest.mark.parametrize("episode_steps,lane_t", [(40, 16), (32, 0)])
+def test_ppo_killed_on_ballu_and_rerun_equals_uninterrupted(tmp_path, episode_steps, lane_t):
     """A BALLU training killed mid-way (here after update 7; checkpoints every 2) and rerun goes on from the
     lanes' saved state: its final and best checkpoints equal an uninterrupted run's bit for bit. The
-    unfinished checkpoint holds that state, the finished ones none."""
+    unfinished checkpoint holds that state, the finished ones none. With 40-step episodes the kill lands mid-way
+    in episode 3; with 32 the checkpoint lands just as every lane's episode begins (no actions yet): such a
+    checkpoint read as damaged until 2026-11-28, and its run started over."""
     cfg = ppo.PPOConfig(num_envs=4, num_steps=16, ckpt_every=2)
-    bcfg = replace(BalluConfig(task="obstacle"), episode_steps=40)   # the kill lands mid-way in episode 3
+    bcfg = replace(BalluConfig(task="obstacle"), episode_steps=episode_steps)
     sampler, total = ballu.UniformDesign(ballu.d2("obstacle")), 12 * 64
 
     class Kill(Exception):
@@ -885,7 +888,7 @@ def test_ppo_killed_on_ballu_and_rerun_equals_uninterrupted(tmp_path):
     with pytest.raises(Kill):
         train(b, kill_after(7))
     mid = ppo.load_checkpoint(b)
-    assert mid["steps"] == 6 * 64 and [lane["t"] for lane in mid["run"]["env"]] == [16] * 4
+    assert mid["steps"] == 6 * 64 and [lane["t"] for lane in mid["run"]["env"]] == [lane_t] * 4
     assert train(b)["resumed"] is True
     for x, y in ((a, b), (ppo.best_path(a), ppo.best_path(b))):
         sx, sy = ppo.load_checkpoint(x), ppo.load_checkpoint(y)
