@@ -323,6 +323,11 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
 # 5. The trainer
 # ----------------------------------------------------------------------------------------------------------
 CKPT_VERSION = 1
+# torch pickles an empty bytes (a lane's actions at the very start of its episode, ballu's BalluEnv.get_state) as
+# a call of bytes(), which torch.load(weights_only=True) refuses by default: a checkpoint taken just as every
+# lane's episode began read as damaged and its training started over (an overnight run, 2026-11-28). bytes()
+# builds only bytes. Process-wide, once: torch's safe_globals() context is not thread-safe (run_all's threads).
+torch.serialization.add_safe_globals([bytes])
 
 
 def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None, ret_norm=None,
@@ -363,17 +368,14 @@ def scored_path(ckpt: str, rule: str = "best") -> str:
 
 def load_checkpoint(path) -> dict:
     """torch.load(weights_only=True) with a one-line error for a missing, damaged or foreign file (torch's own
-    message is not shown: for a pickle it advises weights_only=False, which a user must not follow). `bytes` is
-    allowed: torch pickles an empty bytes (a lane's actions at the very start of its episode, BalluEnv.get_state)
-    as a call of bytes(), which weights_only refuses by default, so a checkpoint taken just as every lane's episode
-    began read as damaged and its run started over (seen in an overnight run, 2026-11-28)."""
+    message is not shown: for a pickle it advises weights_only=False, which a user must not follow). It reads
+    empty bytes too (add_safe_globals at CKPT_VERSION)."""
     if not os.path.exists(path):
         raise FileNotFoundError(f"checkpoint {path!r} does not exist")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            with torch.serialization.safe_globals([bytes]):
-                state = torch.load(path, map_location="cpu", weights_only=True)
+            state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:
         raise ValueError(f"checkpoint {path!r} is truncated, damaged or not a ppo.py checkpoint; delete it to "
                          f"train again") from None
