@@ -1237,6 +1237,9 @@ def code_hash() -> str:
 # [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
 # busy, each kind of policy on each task), measured by `python run_all.py --rates` (docs/presets.md).
 TRAIN_RATE, SCORE_RATE = 880.0, 840.0
+# [ours] the PPO rate whole runs trained at: 639 (quick) and 668 (overnight, seed 0) control steps/s per job, their
+# REPORT.md's rate line; hours of training run slower than --rates' minutes. --plan gives both (docs/presets.md).
+RUN_RATE = 650.0
 # [ours] share of a J's episodes that ballu.score plays (`reuse` replays the rest exactly): the larger of two
 # measurements, since the plan is an upper bound (docs/presets.md). The step counts below stay every episode's.
 SCORE_PLAYED = 0.66
@@ -1322,8 +1325,12 @@ def plan_text(preset: Preset, workers: int = 2) -> str:
     lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
               f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
     total = sum(v["hours"] for v in rows.values())
+    slow = RUN_RATE / TRAIN_RATE   # scores taken as slowed alike: the whole machine ran slower
+    run_h = sum(v["hours"] for v in plan(preset, workers, RUN_RATE, SCORE_RATE * slow).values())
     return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
-                              f"({total * workers:.1f} core-hours)"])
+                              f"({total * workers:.1f} core-hours)",
+                              f"  {run_h:.2f} h at the {RUN_RATE:.0f} PPO control steps/s per core whole runs "
+                              f"trained at (RUN_RATE)"])
 
 
 def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
