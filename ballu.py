@@ -36,6 +36,7 @@ import os
 import tempfile
 import time
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -351,7 +352,16 @@ class BalluConfig:
     w_vel: float = 3.0
     w_jump: float = 1.0
     c_jump: float = 1.73
-    reward_form: str = "paper"            # "paper": -||g-s||^2 and v_x; "code": max(0,1-0.33 d), capped v_x
+    reward_form: str = "paper"            # "paper": -||g-s||^2 and v_x; "code": the authors' terms (see `reward`)
+    # [facts, an option] the authors' schedule: for the first `warmup_steps` control steps of training (all lanes
+    # together; ppo.train tells the env through `schedule`) the curriculum holds every lane's level and r_nav is
+    # off, then r_nav ramps in linearly over the next `warmup_steps`. They do it for 100 of 1,500 updates; 0 = off.
+    warmup_steps: int = 0
+    # [paper / facts] what the policy observes (OBS_FORMS, `obs_names`): "paper" = the paper's text (base
+    # velocities, joints, last action) plus the task cue and the design; "code" = the terms the authors'
+    # policies observed (their obstacle / ramp environment configurations): pelvis position, the knees' distances
+    # to the box edge, no base angular velocity; "code_vel" = "code" with the paper's base velocities in front.
+    obs: str = "paper"
     # [ours] per-step reward x control dt, as stock Isaac Lab's reward manager does. The authors' fork divides
     # the sum by dt again (its per-step reward is unscaled): that is reward_dt_scale=False [facts]. Kept
     # because every PPO setting here was tuned at this scale (docs/ppo_protocol screens the reward scale).
@@ -612,27 +622,61 @@ def surface_height(task: str, x, level):
     return np.where(on, h * (x - g["x0"]) / (g["x1"] - g["x0"]), 0.0)
 
 
-def reward(task, cfg: BalluConfig, x, y_rel, vx, toe_clearance):
+FOOT_POINT_BELOW_TIBIA = 0.034   # [facts] the code reward's foot point: 3.4 cm down the electronics cylinder
+
+
+def reward(task, cfg: BalluConfig, s: LaneState, levels, l_t, nav_scale=1.0):
     """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 4, label eq:reward_obs]; ramp: w1 r_nav + w2 r_vel.
 
-    reward_form="paper" (default): r_nav = -||g - s||^2 in the ground plane, r_vel = v_x (the pelvis velocity
-    along world x, toward the goal [ours]: the pelvis spins freely, so its own x axis is no heading).
-    reward_form="code": r_nav = max(0, 1 - 0.33 ||g - s||), r_vel = v_x capped (0 above 0.8 m/s, e^v - 1
-    below 0) as in the authors' code.
+    reward_form="paper" (default): r_nav = -||g - s||^2 with s the pelvis in the ground plane, r_vel = v_x (the
+    pelvis velocity along world x, toward the goal [ours]: the pelvis spins freely, so its own x axis is no
+    heading), z_toe the lower foot tip's height above the terrain under it.
+    reward_form="code" [facts], the authors' terms where they measure them: r_nav = max(0, 1 - 0.33 d)
+    (ramp: max(-2, 1 - 0.40 d)) with d from the goal to the mean ground-plane position of the two tibia ends
+    (their servo horns); r_vel = v_x capped (0 above 0.8 m/s, e^v - 1 below 0); z_toe the lower of the two
+    points FOOT_POINT_BELOW_TIBIA below the tibia ends, less the box height only while both lie over the box,
+    the jump term 0 above 1.8 m. `nav_scale` multiplies r_nav (the warm-up, BalluConfig.warmup_steps); `l_t`
+    is each lane's tibia length.
     """
-    goal = task_geometry(task)["goal"]
-    dist2 = (goal - x) ** 2 + y_rel ** 2
+    goal, x, vx = task_geometry(task)["goal"], s.pos[:, 0], s.vel[:, 0]
     if cfg.reward_form == "paper":
+        dist2 = (goal - x) ** 2 + s.pos[:, 1] ** 2   # every lane runs along y = 0
         r_nav, r_vel = -dist2, vx
+        toe = s.toe
+        clearance = (toe[:, :, 2] - surface_height(task, toe[:, :, 0], np.asarray(levels)[:, None])).min(axis=1)
+        jump = np.expm1(cfg.c_jump * clearance)
     elif cfg.reward_form == "code":
-        r_nav = np.maximum(0.0, 1.0 - 0.33 * np.sqrt(dist2))
+        ends = s.knee - np.asarray(l_t)[:, None, None] * s.leg_axis        # tibia ends (n, 2, 3)
+        mid = ends[:, :, :2].mean(axis=1)
+        d = np.hypot(goal - mid[:, 0], mid[:, 1])
+        r_nav = np.maximum(0.0, 1.0 - 0.33 * d) if task == "obstacle" else np.maximum(-2.0, 1.0 - 0.40 * d)
         r_vel = np.where(vx > 0.8, 0.0, np.where(vx < 0, np.expm1(np.minimum(vx, 0.0)), vx))
+        feet = ends - FOOT_POINT_BELOW_TIBIA * s.leg_axis
+        g = task_geometry(task)
+        over = ((feet[:, :, 0] >= g["x0"]) & (feet[:, :, 0] <= g["x1"])).all(axis=1)
+        z = feet[:, :, 2].min(axis=1) - np.where(over, level_height(task, levels), 0.0)
+        jump = np.where(z > 1.8, 0.0, np.expm1(cfg.c_jump * np.minimum(z, 1.8)))
     else:
         raise ValueError(f"reward_form={cfg.reward_form!r} is not one of ('paper', 'code')")
-    r = cfg.w_nav * r_nav + cfg.w_vel * r_vel
+    r = cfg.w_nav * nav_scale * r_nav + cfg.w_vel * r_vel
     if task == "obstacle":
-        r = r + cfg.w_jump * np.expm1(cfg.c_jump * toe_clearance)
+        r = r + cfg.w_jump * jump
     return r * (cfg.control_dt if cfg.reward_dt_scale else 1.0)
+
+
+class LaneState(NamedTuple):
+    """What BalluEnv.read_lanes() reads of every lane after a step, in world coordinates (each lane's frame):
+    pelvis position (n, 3) and orientation (n, 4: x, y, z, w), pelvis linear and angular velocity (n, 6),
+    joint positions and velocities (n, 5, JOINTS order), and per leg (n, 2, 3): the foot's tip, the knee (the
+    tibia frame's origin) and the unit vector from the foot up the tibia."""
+    pos: np.ndarray
+    vel: np.ndarray
+    jq: np.ndarray
+    jqd: np.ndarray
+    toe: np.ndarray
+    orn: np.ndarray
+    knee: np.ndarray
+    leg_axis: np.ndarray
 
 
 def to_base_frame(quat, v):
@@ -645,17 +689,54 @@ def to_base_frame(quat, v):
 # ----------------------------------------------------------------------------------------------------------
 # 6. BalluEnv: N robots, one lane each, in worlds of a few lanes
 # ----------------------------------------------------------------------------------------------------------
-OBS_NAMES = (["vx", "vy", "vz", "wx", "wy", "wz"] + [f"q_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
-             + [f"qd_{j}" for j in ("neck", "hip_l", "hip_r", "knee_l", "knee_r")]
-             + ["a_l", "a_r", "dist_to_terrain", "terrain_height"] + [f"design_{n}" for n in DESIGN_NAMES])
+_JOINT_NAMES = ("neck", "hip_l", "hip_r", "knee_l", "knee_r")
+# The observation's blocks, each a list of entry names; a form (BalluConfig.obs) lists the blocks in order.
+OBS_BLOCKS = {
+    "base_vel": ["vx", "vy", "vz", "wx", "wy", "wz"],   # pelvis velocity in its own frame, as Isaac Lab reports it
+    "base_lin_vel": ["vx", "vy", "vz"],
+    "joint_pos": [f"q_{j}" for j in _JOINT_NAMES],
+    "joint_vel": [f"qd_{j}" for j in _JOINT_NAMES],
+    "last_action": ["a_l", "a_r"],
+    "tg": ["tg_sin", "tg_cos"],                          # the trajectory generator's phase (BalluConfig.tg only)
+    "cue": ["dist_to_terrain", "terrain_height"],        # x0 - pelvis x, the level's box / ramp height
+    "pelvis_pos": ["x", "y", "z"],                       # pelvis position in the lane's frame
+    "knee_to_edge": ["knee_l_to_edge", "knee_r_to_edge"],   # x0 - x of each tibia frame origin (the knee)
+    "design": [f"design_{n}" for n in DESIGN_NAMES],     # normalised design, last: the MoE's gate reads it there
+}
+# [paper] Sec. III-C's state plus the task cue [facts]; [facts] what the authors' policies observed, per task,
+# leaving out their constant goal input and the two servo-horn joints our robot does not model (docs/facts.md).
+OBS_FORMS = {
+    "paper": {t: ["base_vel", "joint_pos", "joint_vel", "last_action", "tg", "cue", "design"] for t in TASKS},
+    "code": {"obstacle": ["joint_pos", "joint_vel", "cue", "pelvis_pos", "knee_to_edge", "last_action", "tg",
+                          "design"],
+             "ramp": ["joint_pos", "joint_vel", "pelvis_pos", "base_lin_vel", "last_action", "tg", "design"]},
+    "code_vel": {"obstacle": ["base_vel", "joint_pos", "joint_vel", "cue", "pelvis_pos", "knee_to_edge",
+                              "last_action", "tg", "design"],
+                 "ramp": ["base_vel", "joint_pos", "joint_vel", "pelvis_pos", "last_action", "tg", "design"]},
+}
+
+
+def obs_blocks(cfg: BalluConfig) -> list:
+    """The blocks of the observation under cfg, in order (the trajectory generator's phase only with cfg.tg)."""
+    if cfg.obs not in OBS_FORMS:
+        raise ValueError(f"obs={cfg.obs!r} is not one of {tuple(OBS_FORMS)}")
+    return [b for b in OBS_FORMS[cfg.obs][cfg.task] if b != "tg" or cfg.tg]
+
+
+def obs_names(cfg: BalluConfig) -> tuple:
+    """The name of every observation entry under cfg, in order: a checkpoint keeps them (ppo.py), so a policy
+    cannot be run on an env that observes something else."""
+    return tuple(n for b in obs_blocks(cfg) for n in OBS_BLOCKS[b])
+
+
+OBS_NAMES = list(obs_names(BalluConfig()))                       # the default (paper's) observation
+TG_OBS_NAMES = list(obs_names(BalluConfig(tg=True)))             # with BalluConfig.tg: its phase after a_l, a_r
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
-_A = OBS_NAMES.index("a_r") + 1
-TG_OBS_NAMES = OBS_NAMES[:_A] + ["tg_sin", "tg_cos"] + OBS_NAMES[_A:]   # with BalluConfig.tg: its phase after a_l, a_r
 
 
 def dims(cfg: BalluConfig) -> tuple:
-    """(obs_dim, act_dim) of the env under cfg: the paper's, or with the trajectory generator's (cfg.tg)."""
-    return (len(TG_OBS_NAMES), 4) if cfg.tg else (OBS_DIM, ACT_DIM)
+    """(obs_dim, act_dim) of the env under cfg: 4 actions with the trajectory generator (cfg.tg), else 2."""
+    return len(obs_names(cfg)), (4 if cfg.tg else ACT_DIM)
 
 
 def bullet_substeps(n: int) -> int:
@@ -715,6 +796,13 @@ def check_config(cfg: BalluConfig):
         raise ValueError(f"tg_freq={cfg.tg_freq!r} must be (low, high) Hz with 0 < low < high")
     if not 0 <= cfg.action_smoothing < 1:   # (NaN fails too)
         raise ValueError(f"action_smoothing={cfg.action_smoothing!r} must lie in [0, 1)")
+    if cfg.obs not in OBS_FORMS:
+        raise ValueError(f"obs={cfg.obs!r} is not one of {tuple(OBS_FORMS)}")
+    if cfg.reward_form not in ("paper", "code"):
+        raise ValueError(f"reward_form={cfg.reward_form!r} is not one of ('paper', 'code')")
+    if not isinstance(cfg.warmup_steps, (int, np.integer)) or isinstance(cfg.warmup_steps, bool) \
+            or cfg.warmup_steps < 0:
+        raise ValueError(f"warmup_steps={cfg.warmup_steps!r} must be an integer >= 0")
     for name in ("drag_coef", "passive_damping", "fine_speed"):
         v = getattr(cfg, name)
         if not (isinstance(v, (int, float)) and 0 <= v < math.inf):
@@ -747,6 +835,7 @@ class BalluEnv:
         self.design_sampler = design_sampler
         self.lane_ids = np.arange(num_envs) if lane_ids is None else np.asarray(lane_ids)
         self.obs_dim, self.act_dim = dims(cfg)
+        self.obs_names = obs_names(cfg)   # kept in a checkpoint: a policy runs only on what it observed
         n, B = self.num_envs, cfg.lanes_per_world
         self.worlds = [_World(cfg) for _ in range(-(-n // B))]
         self._world = [self.worlds[i // B] for i in range(n)]   # lane i -> its world
@@ -777,6 +866,7 @@ class BalluEnv:
         self._ready = False
         self.sim_seconds = 0.0
         self.world_steps, self.fine_steps = 0, 0   # world physics steps, and those with fine substeps
+        self.train_steps = None          # the trainer's steps so far, if it tells them (schedule)
         self._stepping = self.worlds     # worlds that stepSimulation steps (see pause)
 
     def pause(self, lanes):
@@ -889,7 +979,7 @@ class BalluEnv:
             if self.cfg.random_first_episode:   # this episode is cut short at a random point (see BalluConfig)
                 self.t[i] = self.rngs[i].integers(self.cfg.episode_steps)
         self._ready, self._stepping = True, self.worlds
-        return self._observe(), {"levels": self.levels.copy(), "designs": self.designs.copy()}
+        return self.observe(), {"levels": self.levels.copy(), "designs": self.designs.copy()}
 
     # -- the hot loop ------------------------------------------------------------------------------------
     def _physics_step(self):
@@ -945,9 +1035,9 @@ class BalluEnv:
         if self.monitor is not None:
             self.monitor(self)
 
-    def _read_state(self):
-        """Per-lane state for observation, reward and limits: four PyBullet calls per robot, gathered in Python
-        lists and turned into arrays once."""
+    def read_lanes(self) -> LaneState:
+        """Every lane's state (LaneState) for observation, reward, limits and figures: four PyBullet calls per
+        robot, gathered in Python lists and turned into arrays once."""
         base, vel, joints, legs = (pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
                                    pybullet.getJointStates, pybullet.getLinkStates)
         rows = []
@@ -963,19 +1053,22 @@ class BalluEnv:
         x, y, z, w = np.moveaxis(leg_orn, -1, 0)
         axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
         toe = knee - self._toe_len[:, None, None] * axis
-        return pos, vel, jq, jqd, toe, orn
+        return LaneState(pos, vel, jq, jqd, toe, orn, knee, axis)
 
-    def _observe(self, state=None):
-        """[s, theta_m]: base velocities in the base frame (as Isaac Lab reports them) [facts], joint positions
-        and velocities, last action [paper]; the task cue and the normalised design [facts]."""
-        pos, vel, jq, jqd, toe, orn = self._read_state() if state is None else state
-        g = task_geometry(self.cfg.task)
-        cue = np.stack([g["x0"] - pos[:, 0], level_height(self.cfg.task, self.levels)], axis=1)
-        vel_b = np.concatenate([to_base_frame(orn, vel[:, :3]), to_base_frame(orn, vel[:, 3:])], axis=1)
-        tg = ([np.sin(2 * np.pi * self.tg_phase)[:, None], np.cos(2 * np.pi * self.tg_phase)[:, None]]
-              if self.cfg.tg else [])
-        return np.concatenate([vel_b, jq, jqd, self.last_action, *tg, cue, normalise_design(self.designs)],
-                              axis=1).astype(np.float32)
+    def observe(self, s: LaneState | None = None):
+        """The observation, its blocks in the order of cfg.obs (OBS_FORMS): [paper] base velocities in the base
+        frame (as Isaac Lab reports them), joint positions and velocities, last action, then the task cue and
+        the normalised design [facts]; or the authors' code's terms [facts]."""
+        s = self.read_lanes() if s is None else s
+        x0 = task_geometry(self.cfg.task)["x0"]
+        blocks = {"base_vel": lambda: [to_base_frame(s.orn, s.vel[:, :3]), to_base_frame(s.orn, s.vel[:, 3:])],
+                  "base_lin_vel": lambda: [to_base_frame(s.orn, s.vel[:, :3])],
+                  "joint_pos": lambda: [s.jq], "joint_vel": lambda: [s.jqd], "last_action": lambda: [self.last_action],
+                  "tg": lambda: [np.sin(2 * np.pi * self.tg_phase)[:, None], np.cos(2 * np.pi * self.tg_phase)[:, None]],
+                  "cue": lambda: [np.stack([x0 - s.pos[:, 0], level_height(self.cfg.task, self.levels)], axis=1)],
+                  "pelvis_pos": lambda: [s.pos], "knee_to_edge": lambda: [x0 - s.knee[:, :, 0]],
+                  "design": lambda: [normalise_design(self.designs)]}
+        return np.concatenate([a for b in obs_blocks(self.cfg) for a in blocks[b]()], axis=1).astype(np.float32)
 
     def _tg_command(self, a, lanes):
         """The knee commands of the trajectory generator (cfg.tg) for actions (c_l, c_r, f, A) of `lanes`;
@@ -998,6 +1091,18 @@ class BalluEnv:
             self._servo_goal[i] = goal
         self.last_action[lanes] = a
 
+    def schedule(self, train_steps: int):
+        """The trainer's control steps so far (ppo.train tells it before each rollout): the warm-up
+        (cfg.warmup_steps) follows them. An env never told, as in `score`, has no warm-up."""
+        self.train_steps = int(train_steps)
+
+    def _warmup(self):
+        """While the warm-up runs: (hold the curriculum?, the scale of r_nav); None after it, or without one."""
+        W = self.cfg.warmup_steps
+        if not W or self.train_steps is None or self.train_steps >= 2 * W:
+            return None
+        return self.train_steps < W, min(1.0, max(0.0, (self.train_steps - W) / W))
+
     def step(self, actions):
         if not self._ready:
             raise RuntimeError("call reset() before step()")
@@ -1008,12 +1113,11 @@ class BalluEnv:
         for _ in range(self.cfg.decimation):
             self._physics_step()
         self.t += 1
-        state = self._read_state()
-        pos, vel, _, _, toe, _ = state
+        state = self.read_lanes()
+        pos, vel = state.pos, state.vel
         cfg, task = self.cfg, self.cfg.task
-        y_rel = pos[:, 1]                       # every lane runs along y = 0
-        clearance = toe[:, :, 2] - surface_height(task, toe[:, :, 0], self.levels[:, None])
-        rew = reward(task, cfg, pos[:, 0], y_rel, vel[:, 0], clearance.min(axis=1))
+        warm = self._warmup()
+        rew = reward(task, cfg, state, self.levels, self.designs[:, 1], 1.0 if warm is None else warm[1])
         finite = np.isfinite(pos).all(1) & np.isfinite(vel).all(1) & np.isfinite(rew)
         blowup = ~finite | (np.linalg.norm(np.nan_to_num(vel[:, :3], nan=1e9), axis=1) > cfg.max_speed) \
             | (np.nan_to_num(pos[:, 2], nan=1e9) > cfg.max_z)
@@ -1021,7 +1125,7 @@ class BalluEnv:
         self.ep_return += rew
         terminated = blowup
         truncated = (self.t >= cfg.episode_steps) & ~terminated
-        obs = self._observe(state)
+        obs = self.observe(state)
         done = terminated | truncated
         # info always holds every key (rows of unfinished lanes masked by "_final_obs"), so worker
         # processes' infos concatenate without special cases.
@@ -1030,14 +1134,14 @@ class BalluEnv:
                 "episode_return": np.where(done, self.ep_return, np.nan),
                 "episode_level": self.levels.copy(), "blowup": blowup}
         if done.any():
-            if self.curriculum:   # a blown-up episode does not move the level (it says nothing of skill)
+            if self.curriculum and (warm is None or not warm[0]):   # a blown-up episode does not move the level
                 moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]), self.level_step)
                 self.levels = np.where(truncated, moved, self.levels)
             for i in np.flatnonzero(done):
                 if blowup[i]:
                     self._body_design[i] = None   # reload a blown-up robot from scratch
                 self._reset_lane(i)
-            fresh = self._observe()
+            fresh = self.observe()
             obs[done] = fresh[done]
         info["levels"] = self.levels.copy()      # the level each lane plays next
         return obs, rew.astype(np.float32), terminated, truncated, info
@@ -1280,6 +1384,7 @@ class VecBallu:
         check_config(cfg)
         self.num_envs, self.cfg = int(num_envs), cfg
         self.obs_dim, self.act_dim = dims(cfg)
+        self.obs_names = obs_names(cfg)   # kept in a checkpoint: a policy runs only on what it observed
         self.splits = np.array_split(np.arange(num_envs), workers)
         self.pool = WorkerPool(workers, timeout)
         self.pool.call(_env_open, [(len(ids), cfg, ids, curriculum) for ids in self.splits])
@@ -1298,6 +1403,9 @@ class VecBallu:
 
     def set_design_sampler(self, sampler):
         self._each(_env_set, "design_sampler", sampler)
+
+    def schedule(self, train_steps: int):
+        self._each(_env_call, "schedule", train_steps)
 
     @property
     def levels(self):
@@ -1541,6 +1649,10 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     """
     cfg = replace(cfg or BalluConfig(), task=task, lanes_per_world=1,   # one world per design (above)
                   random_first_episode=False)                           # J plays whole episodes
+    seen = getattr(policy, "obs_names", None)   # what a learned policy observed in training (ppo.PolicyFn)
+    if seen is not None and tuple(seen) != obs_names(cfg):
+        raise ValueError(f"the policy observed {len(seen)} entries {tuple(seen)}, this env (obs={cfg.obs!r}, "
+                         f"task={task!r}) gives {obs_names(cfg)}: score it with the BalluConfig it trained with")
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
     steps = check_level_steps(level_steps, episodes)

@@ -331,10 +331,11 @@ torch.serialization.add_safe_globals([bytes])
 
 
 def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None, ret_norm=None,
-                    run=None):
+                    run=None, obs_names=None):
     """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint. `ret_norm`: the
     return statistics of cfg.reward_norm (absent from older checkpoints: they start afresh). `run`: what an
-    unfinished run needs to go on exactly (see train); a finished run's checkpoint holds none."""
+    unfinished run needs to go on exactly (see train); a finished run's checkpoint holds none. `obs_names`: the
+    env's names of the observation entries, if it has them (a policy must not run on another observation)."""
     state = {"version": CKPT_VERSION, "kind": kind, "obs_dim": int(norm.mean.shape[0]),
              "act_dim": int(policy.log_std.shape[0]), "cfg": {k: list(v) if isinstance(v, tuple) else v
                                                               for k, v in asdict(cfg).items()},
@@ -345,6 +346,8 @@ def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, 
         state["ret_norm"] = ret_norm.state()
     if run is not None:
         state["run"] = run
+    if obs_names is not None:
+        state["obs_names"] = list(obs_names)
     tmp = f"{path}.tmp"
     torch.save(state, tmp)
     os.replace(tmp, path)
@@ -488,6 +491,7 @@ def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
     `own` is the checkpoint's whole state when the run resumes from `ckpt`, else None."""
     resume = ckpt if os.path.exists(ckpt) else init_ckpt
     state = load_checkpoint(resume) if resume else None
+    names = list(getattr(env, "obs_names", None) or []) or None
     if resume != ckpt:
         torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
     if state is None:
@@ -495,6 +499,9 @@ def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
     elif (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
         raise ValueError(f"checkpoint {resume!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
                          f" act {state['act_dim']}, not a {kind} policy for obs {env.obs_dim} / act {env.act_dim}")
+    elif state.get("obs_names", names) != names:   # (checkpoints older than the names are checked by size)
+        raise ValueError(f"checkpoint {resume!r} holds a policy that observed {state['obs_names']}, this env "
+                         f"observes {names}")
     else:
         policy, norm = policy_from(state)
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
@@ -603,6 +610,8 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
     with TrainLog(log_csv, progress, kind, total_steps) as log:
         while steps < total_steps:
             t0 = time.time()
+            if hasattr(env, "schedule"):   # an env whose schedule follows training's progress (a warm-up)
+                env.schedule(steps)
             buf, obs, info, finished = rollout(kind, policy, norm, env, obs, T, cfg, int(rng.integers(2 ** 31)))
             with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
                 last_value = policy.value(torch.from_numpy(norm(obs))).numpy()
@@ -621,7 +630,8 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
                       float(std.mean()))
             if it % cfg.ckpt_every == 0 or steps >= total_steps:
                 save = lambda path, extra, run=None: save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr,
-                                                                     levels, rng, extra, ret_norm, run)
+                                                                     levels, rng, extra, ret_norm, run,
+                                                                     getattr(env, "obs_names", None))
                 new = next_best(best, float(np.mean(window)), steps)
                 if new is not None:   # the best first: a kill in between redoes both
                     best = new
@@ -709,8 +719,9 @@ class PolicyFn:
     independent), it lets ballu.score play each level of a walk once (`reuse`)."""
     pure = True
 
-    def __init__(self, policy: nn.Module, norm: RunningNorm, cfg: PPOConfig = PPOConfig()):
+    def __init__(self, policy: nn.Module, norm: RunningNorm, cfg: PPOConfig = PPOConfig(), obs_names=None):
         self.policy, self.norm, self.cfg = policy.eval(), norm, cfg
+        self.obs_names = obs_names   # what it observed in training, if its checkpoint says (ballu.score checks)
 
     def __call__(self, obs):
         x = torch.from_numpy(self.norm(np.asarray(obs)))
@@ -730,7 +741,7 @@ class PolicyFn:
 def load_policy(path: str) -> PolicyFn:
     torch.set_num_threads(1)
     state = load_checkpoint(path)
-    return PolicyFn(*policy_from(state), config_from(state))
+    return PolicyFn(*policy_from(state), config_from(state), state.get("obs_names"))
 
 
 # ----------------------------------------------------------------------------------------------------------

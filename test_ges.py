@@ -536,12 +536,124 @@ def test_ballu_base_frame_velocities_are_world_velocities_rotated_into_the_pelvi
     orn = pybullet.getQuaternionFromEuler([0.3, -0.6, 0.2])
     env.client(0).resetBasePositionAndOrientation(env.bodies[0], [0, 0, 3.0], orn)
     env.client(0).resetBaseVelocity(env.bodies[0], [0.7, 0.0, -0.2], [0.0, 1.5, 0.0])
-    obs = env._observe()
+    obs = env.observe()
     env.close()
     R = Rotation.from_quat(orn)
     np.testing.assert_allclose(obs[0, 0:3], R.inv().apply([0.7, 0.0, -0.2]), atol=1e-5)
     np.testing.assert_allclose(obs[0, 3:6], R.inv().apply([0.0, 1.5, 0.0]), atol=1e-5)
     assert abs(obs[0, 0] - 0.7) > 0.05                          # the frame really differs from the world's
+
+
+def test_ballu_code_observation_reads_the_pelvis_and_each_knees_distance_to_the_box_edge():
+    """obs="code" [facts]: a pelvis placed at (0.2, 0, 2.0) with the left hip at 0.4 rad puts the left knee
+    l_f sin(0.4) behind the pelvis (a pitch rotation of the straight femur), the right one under it; the box's
+    front edge is at x = 0.5, its height 1 cm per level. The form holds no base velocity; "code_vel" adds it."""
+    cfg = BalluConfig(obs="code")
+    env = BalluEnv(1, cfg)
+    env.reset(seed=0, options={"levels": 10})
+    p, b = env.client(0), env.bodies[0]
+    p.resetBasePositionAndOrientation(b, [0.2, 0.0, 2.0], [0, 0, 0, 1])
+    p.resetBaseVelocity(b, [0.3, 0.0, 0.0], [0.0, 0.5, 0.0])
+    p.resetJointState(b, ballu.HIP_L, 0.4, 0.0)
+    p.resetJointState(b, ballu.HIP_R, 0.0, 0.0)
+    obs = dict(zip(ballu.obs_names(cfg), env.observe()[0]))
+    env.close()
+    l_f = 0.45
+    assert obs["knee_l_to_edge"] == pytest.approx(0.5 - (0.2 - l_f * math.sin(0.4)), abs=1e-5)
+    assert obs["knee_r_to_edge"] == pytest.approx(0.3, abs=1e-5)
+    assert (obs["x"], obs["y"], obs["z"]) == pytest.approx((0.2, 0.0, 2.0), abs=1e-6)
+    assert obs["dist_to_terrain"] == pytest.approx(0.3, abs=1e-6)
+    assert obs["terrain_height"] == pytest.approx(0.101, abs=1e-6)
+    assert not {"vx", "wy"} & set(obs) and list(obs)[-4:] == [f"design_{n}" for n in ballu.DESIGN_NAMES]
+    assert ballu.obs_names(BalluConfig(obs="code_vel"))[:6] == ("vx", "vy", "vz", "wx", "wy", "wz")
+    ramp = ballu.obs_names(BalluConfig(task="ramp", obs="code"))
+    assert "vx" in ramp and "wx" not in ramp and "knee_l_to_edge" not in ramp
+
+
+def _lanes(knees, axis=(0.0, 0.0, 1.0), pos=(0.0, 0.0, 1.0), vx=0.0):
+    """A hand-made one-lane LaneState: knees (2, 3), both legs along `axis` (unit, foot to knee)."""
+    knee = np.array([knees], dtype=float)
+    leg_axis = np.broadcast_to(np.asarray(axis, dtype=float), (1, 2, 3)).copy()
+    toe = knee - 0.45 * leg_axis
+    return ballu.LaneState(np.array([pos], float), np.array([[vx, 0, 0, 0, 0, 0]], float), np.zeros((1, 5)),
+                           np.zeros((1, 5)), toe, np.array([[0, 0, 0, 1.0]]), knee, leg_axis)
+
+
+def test_ballu_code_reward_measures_at_the_feet_and_subtracts_the_box_only_under_both_feet():
+    """reward_form="code" [facts], against hand-computed values (unscaled by dt): r_nav from the goal to the
+    mean of the two tibia ends, 0.33 per m (obstacle) or 0.40 down to -2 (ramp); the jump term from the points
+    3.4 cm below the tibia ends, the box height (level 10: 0.101 m) subtracted only when both are over it."""
+    cfg = BalluConfig(reward_form="code", reward_dt_scale=False)
+    l_t, h = np.array([0.4]), 0.101
+    # tibia ends at x 1.0 and 1.2 (mean 1.1: d = 0.9), 0.2 m above the box; feet 3.4 cm lower
+    s = _lanes([[1.0, 0.1, h + 0.6], [1.2, -0.1, h + 0.6]], vx=0.5)
+    z = 0.2 - 0.034
+    want = 5 * (1 - 0.33 * 0.9) + 3 * 0.5 + (math.exp(1.73 * z) - 1)
+    assert ballu.reward("obstacle", cfg, s, np.array([10]), l_t)[0] == pytest.approx(want, rel=1e-9)
+    # one foot short of the edge (x 0.45): the height is above the ground, box not subtracted
+    s = _lanes([[0.45, 0.0, h + 0.6], [1.2, 0.0, h + 0.6]], vx=-0.5)
+    d, z = 2.0 - (0.45 + 1.2) / 2, h + 0.2 - 0.034
+    want = 5 * (1 - 0.33 * d) + 3 * (math.exp(-0.5) - 1) + (math.exp(1.73 * z) - 1)
+    assert ballu.reward("obstacle", cfg, s, np.array([10]), l_t)[0] == pytest.approx(want, rel=1e-9)
+    # far from the goal: r_nav floors at 0 (obstacle) and -2 (ramp); above 0.8 m/s r_vel is 0; above 1.8 m no jump
+    far = _lanes([[-8.0, 0.0, 3.0], [-8.0, 0.0, 3.0]], vx=0.9)
+    assert ballu.reward("obstacle", cfg, far, np.array([10]), l_t)[0] == 0.0
+    assert ballu.reward("ramp", cfg, far, np.array([10]), l_t)[0] == pytest.approx(5 * -2.0)
+    # the warm-up's nav scale multiplies r_nav alone
+    half = ballu.reward("obstacle", cfg, _lanes([[1.5, 0, 0.5], [1.5, 0, 0.5]]), np.array([0]), l_t, 0.5)[0]
+    assert half == pytest.approx(0.5 * 5 * (1 - 0.33 * 0.5) + (math.exp(1.73 * (0.1 - 0.034 - 0.001)) - 1))
+
+
+def test_ballu_warmup_holds_the_curriculum_and_ramps_the_navigation_reward():
+    """BalluConfig.warmup_steps [facts]: while the trainer's steps are < W a finished episode does not move its
+    lane's level and r_nav is off; from W to 2 W r_nav is scaled by (steps - W) / W; an env never told the
+    steps (as in score) has no warm-up."""
+    W = 1000
+    designs = np.tile(BASELINE, (2, 1))
+
+    def run(warmup, told):
+        env = BalluEnv(2, BalluConfig(reward_form="code", warmup_steps=warmup, episode_steps=3))
+        env.reset(seed=0, options={"designs": designs, "levels": 5})
+        if told is not None:
+            env.schedule(told)
+        p = env.client(0)
+        p.resetBasePositionAndOrientation(env.bodies[0], [1.2, 0.0, 1.0], [0, 0, 0, 1])   # lane 0 past x = 1.0
+        rewards, s = [], None
+        for _ in range(3):
+            s = env.read_lanes()
+            rewards.append(env.step(np.full((2, 2), 0.3))[1])
+        levels = env.levels.copy()
+        env.close()
+        return np.array(rewards), levels
+
+    r_plain, lv_plain = run(0, None)
+    assert lv_plain.tolist() == [6, 4]                                  # the curriculum moved both lanes
+    assert run(W, None)[1].tolist() == [6, 4]                           # not told: no warm-up
+    r_hold, lv_hold = run(W, 0)
+    assert lv_hold.tolist() == [5, 5]                                   # held during the warm-up
+    r_half = run(W, W + W // 2)[0]
+    assert run(W, 2 * W)[1].tolist() == [6, 4]
+    # the same trajectories (actions do not depend on the reward): r_nav = plain - held, half of it at 1.5 W
+    np.testing.assert_allclose(r_half, r_hold + 0.5 * (r_plain - r_hold), rtol=1e-6, atol=1e-9)
+    assert (r_plain - r_hold).min() > 0                                 # r_nav > 0 near the box
+
+
+def test_ppo_a_checkpoint_of_one_observation_does_not_load_into_an_env_of_another(tmp_path):
+    """The checkpoint keeps the env's observation names: resuming or warm-starting on an env that observes
+    other entries of the same count is a clear error, and ballu.score refuses a policy that observed others."""
+    env = PointMass(4)
+    env.obs_names = ("x", "t")
+    cfg = ppo.PPOConfig(num_envs=4, num_steps=8, minibatches=1, epochs=1)
+    ckpt = str(tmp_path / "p.pt")
+    ppo.train("mlp", env, None, 32, ckpt, cfg, progress=None)
+    assert ppo.load_checkpoint(ckpt)["obs_names"] == ["x", "t"]
+    env.obs_names = ("t", "x")
+    with pytest.raises(ValueError, match=r"observed \['x', 't'\], this env observes \['t', 'x'\]"):
+        ppo.train("mlp", env, None, 64, str(tmp_path / "q.pt"), cfg, init_ckpt=ckpt, progress=None)
+    policy = ppo.load_policy(ckpt)
+    policy.obs_names = ballu.obs_names(BalluConfig(obs="code"))
+    with pytest.raises(ValueError, match="score it with the BalluConfig it trained with"):
+        ballu.score(policy, BASELINE, "obstacle")
 
 
 def test_ballu_quirk_torque_rotates_with_the_balloon_and_rights_it():
@@ -610,7 +722,10 @@ def test_ballu_adaptive_substeps_switch_on_fast_or_near_limit_joints(monkeypatch
                                            ({"fine_speed": float("nan")}, "fine_speed=nan must be a finite"),
                                            ({"design_hold": 0}, r"design_hold=0 must be an integer in \[1, "),
                                            ({"action_smoothing": 1.0}, r"action_smoothing=1.0 must lie in \[0, 1\)"),
-                                           ({"tg_freq": (2.0, 1.0)}, r"tg_freq=\(2.0, 1.0\) must be \(low, high\)")])
+                                           ({"tg_freq": (2.0, 1.0)}, r"tg_freq=\(2.0, 1.0\) must be \(low, high\)"),
+                                           ({"obs": "text"}, r"obs='text' is not one of \('paper', 'code'"),
+                                           ({"reward_form": "x"}, r"reward_form='x' is not one of"),
+                                           ({"warmup_steps": -1}, "warmup_steps=-1 must be an integer >= 0")])
 def test_ballu_bad_simulator_settings_name_the_field(change, match):
     with pytest.raises(ValueError, match=match):
         BalluEnv(1, replace(BalluConfig(), **change))
@@ -637,7 +752,7 @@ def test_ballu_energy_audit_finds_no_energy_created():
     for a in np.random.default_rng(0).uniform(0.25, 0.75, (20, 2, 2)):
         env.step(a)
         trace.append(mon.balance.copy())
-    z = env._read_state()[0][:, 2]
+    z = env.read_lanes().pos[:, 2]
     env.close()
     assert (z > 1.9).all()                                          # still in the air
     assert (mon.work > 0.5).all()                                   # much work was done (0.7-0.9 J) ...

@@ -109,7 +109,8 @@ def play_open_loop(designs, actions, task: str = "obstacle", level=0, cfg: Ballu
             alive &= ~term                 # a blown-up lane was reset: nothing after it counts
             if mon is not None:
                 mon.alive &= ~term
-            pos, _, _, _, toe, _ = env._read_state()
+            s = env.read_lanes()
+            pos, toe = s.pos, s.toe
             clear = (toe[:, :, 2] - surface_height(task, toe[:, :, 0], env.levels[:, None])).min(axis=1)
             landed |= clear < 0.01         # the spawn drop (feet 0.2-0.3 m up at t = 0) is no jump
             peak = np.where(alive & landed, np.maximum(peak, clear), peak)

@@ -40,7 +40,8 @@ def episode(policy, design, level: int, cfg: ballu.BalluConfig) -> dict:
         if term[0] or trunc[0]:   # the lane was reset: its last pelvis x is in the info
             xs.append(float(info["final_x"][0]))
             break
-        pos, _, _, _, toe, _ = env._read_state()
+        s = env.read_lanes()
+        pos, toe = s.pos, s.toe
         x, toe_z, toe_x = pos[0, 0], toe[0, :, 2].min(), toe[0, :, 0].max()
         on_top |= bool(np.any((toe[0, :, 0] > g["x0"] + 0.01) & (toe[0, :, 0] < g["x1"])
                               & (np.abs(toe[0, :, 2] - h) < 0.02)))

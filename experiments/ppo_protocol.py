@@ -36,6 +36,9 @@ from runkit.progress import eta_s
 # Settings run on the simulator of their day: docs/ppo_protocol/README.md says which robot each table used.
 BEFORE = {"init_action_mean": 0.5, "max_lr": 1e-2}
 LR_CAP = {"init_action_mean": 0.5, "max_lr": 1e-3, "start_level": "task"}
+# The authors' warm-up is 100 of their 1,500 updates (6.7 %); the protocol's 2 M steps are 977 updates of 2,048,
+# so the same share is 64 updates: as many of the run's gradient steps go to walking on flat ground.
+WARMUP_STEPS = 64 * 2048
 PROTOCOL_SETTINGS = {
     "before": BEFORE,
     # candidates to screen (1 M steps, one seed, one task), each one lever changed from "before":
@@ -80,6 +83,15 @@ PROTOCOL_SETTINGS = {
     "big128": {**LR_CAP, "num_envs": 128, "num_steps": 32, "minibatches": 8},
     # [ours] a policy that modulates a pump (Policies Modulating Trajectory Generators): ballu.BalluConfig.tg
     "tg": {**LR_CAP, "tg": True},
+    # the authors' MDP, read from their code (docs/facts.md "MDP"; ballu.BalluConfig.obs, reward_form,
+    # warmup_steps): what their obstacle policy observed (no base velocity; pelvis position, knees to the edge),
+    # the same with the paper's base velocities kept, each with their reward terms, and with their warm-up
+    "obs_code": {**LR_CAP, "obs": "code"},
+    "obs_code_vel": {**LR_CAP, "obs": "code_vel"},
+    "obs_code_reward": {**LR_CAP, "obs": "code", "reward_form": "code"},
+    "obs_code_vel_reward": {**LR_CAP, "obs": "code_vel", "reward_form": "code"},
+    "code_mdp": {**LR_CAP, "obs": "code", "reward_form": "code", "warmup_steps": WARMUP_STEPS},
+    "code_vel_mdp": {**LR_CAP, "obs": "code_vel", "reward_form": "code", "warmup_steps": WARMUP_STEPS},
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},

@@ -29,7 +29,7 @@ def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) ->
         z = []
         for _ in range(steps):
             obs, *_ = env.step(policy(obs))
-            z.append(env._read_state()[4][0, :, 2])
+            z.append(env.read_lanes().toe[0, :, 2])
     finally:
         env.close()
     return np.array(z)
