@@ -19,12 +19,13 @@ Read top to bottom, the paper's experiments section in order:
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve
   4. figures (helpers that need no run: report/figures.py)
-  5. REPORT.md and results.json from the stages' results: the header (budgets, seed, commit) and wall times
-     here; the paper's numbers and every table with each cell as "ours (paper)" in report/
-  6. machinery: derived seeds, Dask, a kill hook for the resume test, --plan's arithmetic and --rates
+  5. REPORT.md and results.json from the stages' results; the paper's numbers, the header (budgets, seed,
+     commit), every table with each cell as "ours (paper)" and the wall times in report/
+  6. machinery: derived seeds, Dask, a kill hook for the resume test, the job --rates times
   7. the command line
 Machinery that knows nothing of BALLU or GES (progress and the one ETA formula, atomic JSON and damaged files,
-the training log, the output folder, the stage clock, Dask and the process pool, statistics) lives in runkit/.
+the training log, the output folder, the stage clock, Dask, the process pool and jobs side by side, statistics,
+and what a preset costs: --plan's arithmetic, --rates' measurement) lives in runkit/.
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
 
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
@@ -47,13 +48,11 @@ import json
 import math
 import multiprocessing as mp
 import os
-import shutil
 import sys
-import tempfile
 import threading
 import time
 import zlib
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -64,15 +63,16 @@ import ppo
 import tpe
 from report.paper import METHOD_NAMES, PAPER_TABLE2
 from report.figures import _plt, fig_curves, fig_ksens, gait_features, level_of, toe_heights
-from report.tables import (GAIT_FEATURES, md_table, report_claims, report_cost, report_figures, report_ges_runs,
-                           report_ksens, report_table1, report_table2, report_table3)
+from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_figures, report_ges_runs, report_header,
+                           report_ksens, report_table1, report_table2, report_table3, report_wall)
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_output, git_commit, open_output
-from runkit.logs import read_log, train_seconds, trim_log
+from runkit.logs import train_seconds, training_rate, trim_log
+from runkit.plan import Layout, measure_rates, plan_seconds, plan_text, rates_text
 from runkit.pool import (GatedExecutor, StopBy, clock_text, close_dask_clients, dask_client, dask_executor,
-                         exit_with_parent, stop_time)
-from runkit.progress import Progress, Throttled, eta_s, run_eta, say
+                         exit_with_parent, side_by_side, stop_time)
+from runkit.progress import Progress, Throttled, eta_s, round_eta, run_eta, say
 from runkit.stats import wins
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -86,6 +86,8 @@ TASKS = ("obstacle", "ramp")
 SPACES = ("d2", "d3")
 UNIT = {"obstacle": "cm", "ramp": "deg"}
 METHODS = ("baseline", "mlp", "moe", "ges")          # "baseline" = the baseline design's own policy
+E2E = ("mlp", "moe")                                  # the end-to-end policies of a cell (paper Sec. V-A)
+SEARCHED = E2E + ("ges",)                             # the methods a TPE design search runs with (Sec. V-B)
 
 
 def space_of(preset: Preset, task: str, sp: str) -> ballu.DesignSpace:
@@ -103,37 +105,34 @@ def start_levels(task: str, preset: Preset):
     return ballu.named_start_levels(preset.ppo_start, task, preset.score_start_level)
 
 
-def train_policy(folder: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int,
-                 workers: int, label: str) -> str:
-    """Train (or resume, or skip if done) one PPO policy into folder/policy.pt with its log.csv.
-
-    A run killed mid-way resumes from ppo.train's last checkpoint (every 10 updates), its lanes' episodes
-    replayed, so it ends bit-identical with an uninterrupted run. A damaged checkpoint is moved aside and the
-    policy retrained from scratch (redo_if_damaged)."""
-    os.makedirs(folder, exist_ok=True)
-    ckpt, log = os.path.join(folder, "policy.pt"), os.path.join(folder, "log.csv")
-    have = redo_if_damaged(ckpt, ckpt_steps, "ppo.py checkpoint", f"retraining policy {label or folder}") or 0
-    if have >= steps:
+def train_policy(ckpt: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int, label: str = "",
+                 init_ckpt: str | None = None, log: str | None = None) -> str:
+    """Train one PPO policy into `ckpt` to `steps` control steps, in-process on one core, its learning curve in
+    `log` (default: log.csv beside it), warm-started from `init_ckpt` if given; `label` prefixes its progress
+    lines ("": silent). The one home of a training job's skip / resume / restart: a checkpoint at its steps is
+    kept (done in an earlier attempt); one killed mid-way goes on from its last checkpoint, its lanes' episodes
+    replayed, so it ends bit-identical with an uninterrupted run (its log trimmed to the checkpoint); one that
+    cannot go on exactly (damaged: moved aside by redo_if_damaged; or without lanes' state: a finished shorter
+    run's, an older code's) is deleted with its best policy and log, and the job trains from scratch."""
+    os.makedirs(os.path.dirname(ckpt) or ".", exist_ok=True)
+    log = log or os.path.join(os.path.dirname(ckpt), "log.csv")
+    own = redo_if_damaged(ckpt, ppo.load_checkpoint, "ppo.py checkpoint", f"retraining {label or ckpt}")
+    if own and own["steps"] >= steps:
         return ckpt
-    if have:
-        trim_log(log, have)
-    elif os.path.exists(log):
-        os.remove(log)
-    cfg = ppo_config(preset)   # few lanes stay in-process: a spawned worker costs ~2 s of imports
-    env = ballu.make_env(cfg.num_envs, max(1, min(workers, cfg.num_envs // 8)), ballu.BalluConfig(task=task))
+    if own and "run" in own:
+        trim_log(log, own["steps"])
+    else:
+        for f in (ckpt, ppo.best_path(ckpt), log):
+            if os.path.exists(f):
+                os.remove(f)
+    cfg = ppo_config(preset)
+    env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=task))
     try:
-        ppo.train(kind, env, sampler, steps, ckpt, cfg, seed=seed, start_level=start_levels(task, preset),
-                  log_csv=log, progress=Throttled(label))
+        ppo.train(kind, env, sampler, steps, ckpt, cfg, init_ckpt=init_ckpt, seed=seed,
+                  start_level=start_levels(task, preset), log_csv=log, progress=Throttled(label) if label else None)
     finally:
         env.close()
     return ckpt
-
-
-def specialist_steps(first_round_steps: int | None, round_steps: int, rounds: int) -> int:
-    """Steps a GES specialist has trained after `rounds` rounds: round 0's budget (None: round_steps), then
-    round_steps per round."""
-    first = round_steps if first_round_steps is None else first_round_steps
-    return first + (rounds - 1) * round_steps if rounds > 0 else 0
 
 
 @dataclass
@@ -141,12 +140,9 @@ class TrainSpecialist:
     """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
 
     Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
-    and step count carry over) and trains to first_round_steps + r * round_steps control steps. A repeated
-    (interrupted) round keeps a specialist whose output reached its steps, resumes one killed mid-way from its
-    last checkpoint (its lanes' episodes replayed, as train_policy does: at most 10 updates are lost, where
-    retraining lost the whole round, ~35 min per kill in the overnight preset), and retrains one whose
-    checkpoint cannot go on exactly (no lanes' state: an older code's); the round is identical to an
-    uninterrupted one."""
+    and step count carry over) and trains to Preset.ges_steps(r + 1) control steps at this trainer's round sizes,
+    on top of the warm-start policy's steps. A repeated (interrupted) round skips, resumes or retrains each
+    specialist as train_policy does, so the round is identical to an uninterrupted one."""
     task: str
     space: ballu.DesignSpace
     round_steps: int
@@ -156,27 +152,11 @@ class TrainSpecialist:
     label: str = ""   # progress lines' prefix (the GES run's name); "" trains silently
 
     def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
-        log = ckpt_out + ".csv"
         base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
-        steps = specialist_steps(self.first_round_steps, self.round_steps, round + 1)
-        own = redo_if_damaged(ckpt_out, ppo.load_checkpoint, "ppo.py checkpoint", "retraining the specialist")
-        if own and own["steps"] >= base + steps:
-            return   # done in an earlier attempt of this round (a stopped run's)
-        if own and "run" in own:
-            trim_log(log, own["steps"])   # killed mid-way: ppo.train goes on from the checkpoint's lanes
-        else:
-            for f in (ckpt_out, ppo.best_path(ckpt_out), log):
-                if os.path.exists(f):
-                    os.remove(f)
-        cfg = ppo_config(self.preset)
-        env = ballu.make_env(cfg.num_envs, 1, ballu.BalluConfig(task=self.task))
-        try:
-            ppo.train("mlp", env, ballu.InSpace(self.space, sampler), base + steps,
-                      ckpt_out, cfg, init_ckpt=ckpt_in or self.warm_ckpt or None, seed=sampler.seed,
-                      start_level=start_levels(self.task, self.preset), log_csv=log,
-                      progress=Throttled(f"{self.label} specialist {k} round {round}") if self.label else None)
-        finally:
-            env.close()
+        sizes = replace(self.preset, ges_round_steps=self.round_steps, ges_first_round_steps=self.first_round_steps)
+        train_policy(ckpt_out, "mlp", self.task, ballu.InSpace(self.space, sampler), base + sizes.ges_steps(round + 1),
+                     self.preset, sampler.seed, f"{self.label} specialist {k} round {round}" if self.label else "",
+                     ckpt_in or self.warm_ckpt or None, ckpt_out + ".csv")
 
 
 def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, label: str = "",
@@ -272,7 +252,7 @@ def ges_specialist(run_dir: str, theta, preset: Preset):
 def load_policy(run: Run, method: str, task: str, sp: str):
     """The policy of a single-policy method ('baseline' = the baseline design's own policy, 'mlp', 'moe')."""
     name = f"baseline-{task}" if method == "baseline" else f"{method}-{task}-{sp}"
-    return read_back(ppo.scored_path(run.path("policies", name, "policy.pt"), run.preset.policy_rule),
+    return read_back(ppo.scored_path(policy_ckpt(run, name), run.preset.policy_rule),
                      ppo.load_policy, "ppo.py checkpoint")
 
 
@@ -322,7 +302,7 @@ class Preset:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
     #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
     ges_warm_start: bool = False  # ours (quick, overnight): specialists start from their cell's e2e MLP (paper: random;
-    #                               from random init they scored 3.8 cm lower at 300k steps each: docs/ges_lanes)
+    #                               at our budgets random init scores lower at the same steps: docs/ges_lanes)
     score_start_level: int | None = None  # None: the task's SCORE_START_LEVEL (facts); ours, smoke only (below)
     probe_level_steps: tuple | None = None  # GES's probe score only: ballu.score's level_steps (None: the paper's J)
     # [ours] episodes of the J that scores each TPE search's peak design once more: the 20-episode J from level 28
@@ -337,8 +317,10 @@ class Preset:
     ges_first_round_steps: int | None = None
 
     def ges_steps(self, rounds: int) -> int:
-        """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted)."""
-        return specialist_steps(self.ges_first_round_steps, self.ges_round_steps, rounds)
+        """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted): round 0's
+        budget, then ges_round_steps per round. The one home of a specialist's step budget."""
+        first = self.ges_round_steps if self.ges_first_round_steps is None else self.ges_first_round_steps
+        return first + (rounds - 1) * self.ges_round_steps if rounds > 0 else 0
 
 
 # [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
@@ -360,7 +342,7 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 # warm-start from their cell's e2e MLP (ges_warm_start, ours) and train 200k steps in round 0 (the budget at which
 # a territory measurably helps, docs/ges_lanes), 10k in round 1, the last (2 rounds, F = 3 probes). The time came
 # from what 18-20 test designs cannot resolve anyway: Table III runs grid against FPS + Lloyd only, Fig. 7 K = 1
-# and 3; and from 18 test designs (20 before), TPE searches of 4 trials, 2 per-design BO trials, no 30-episode
+# and 3; and from 18 test designs, TPE searches of 4 trials, 2 per-design BO trials, no 30-episode
 # rescore of the TPE peaks. ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init (`python ges.py
 # --sweep`). What each stage buys, in hours and centimetres: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
@@ -371,10 +353,9 @@ QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, 
 
 # overnight: one night on 2 cores (`--plan`: 11.2 h with every GES run at its round cap): 1 M PPO steps per policy
 # (the universal policy's J is flat from 1 to 5 M: docs/ppo_protocol); specialists warm-start from it and train
-# 1 M steps in round 0 (one design's J climbs ~6 cm per M steps there: the night's steps buy most in the
-# specialists), 100k in each later one, to 95 % coverage or 3 rounds (facts: 20) with F = 10; Fig. 7 at K = 1, 3
-# and 6 (the paper's peak and both ends; K = 2, 4, 5 gave the time); 50 test designs; the paper's 40 TPE trials.
-# The numbers behind each: docs/presets.md.
+# 1 M steps in round 0 (one design's J still climbs there: the night's steps buy most in the specialists), 100k in
+# each later one, to 95 % coverage or 3 rounds (facts: 20) with F = 10; Fig. 7 at K = 1, 3 and 6 (the paper's peak
+# and both ends); 50 test designs; the paper's 40 TPE trials. The numbers behind each: docs/presets.md.
 OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
                    score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, ges_max_rounds=3, ges_probes=10,
                    ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000,
@@ -390,6 +371,9 @@ PAPER = Preset("paper", ppo_steps=20_000_000, ges_round_steps=1_000_000, ppo_env
                ksens_K=(1, 2, 3, 4, 5, 6), cost_trials=40, peak_episodes=30)
 
 PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
+# what every run is made of besides its budgets, counted for --plan (runkit.plan)
+LAYOUT = Layout(tasks=len(TASKS), spaces=len(SPACES), e2e=len(E2E), methods=len(METHODS), searched=len(SEARCHED),
+                episode_steps=ballu.BalluConfig().episode_steps)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -446,8 +430,8 @@ def stage_table1(run: Run) -> dict:
 
 
 # --- baselines ----------------------------------------------------------------------------------------------
-def policy_dir(run: Run, name: str) -> str:
-    return run.path("policies", name)
+def policy_ckpt(run: Run, name: str) -> str:
+    return run.path("policies", name, "policy.pt")
 
 
 def baseline_jobs(run: Run) -> list:
@@ -457,15 +441,15 @@ def baseline_jobs(run: Run) -> list:
     for t in TASKS:
         for s in SPACES:
             space = space_of(run.preset, t, s)
-            for kind in ("mlp", "moe"):
+            for kind in E2E:
                 jobs.append((f"{kind}-{t}-{s}", kind, t, ballu.UniformDesign(space)))
     return jobs
 
 
 def train_baseline(run: Run, name: str, kind: str, task: str, sampler) -> str:
     """Train (or resume, or skip if done) one policy of baseline_jobs, in-process (one core)."""
-    return train_policy(policy_dir(run, name), kind, task, sampler, run.preset.ppo_steps, run.preset,
-                        derive_seed(run.seed, "ppo", name), 1, name)
+    return train_policy(policy_ckpt(run, name), kind, task, sampler, run.preset.ppo_steps, run.preset,
+                        derive_seed(run.seed, "ppo", name), name)
 
 
 def stage_baselines(run: Run) -> dict:
@@ -493,22 +477,6 @@ def ges_name(task: str, sp: str, K: int, init: str) -> str:
     return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"
 
 
-def ges_round_eta(times: dict, rounds_left: int, first_steps: int | None, round_steps: int) -> str:
-    """'eta <= Xs' for a GES run's rounds left (a run may stop early on coverage), each training round_steps
-    per specialist: at the pace of the rounds of that size so far; before any, the first training round's time
-    scaled by steps ('~': its probes do not scale; quick's first round trains 20x a later one's steps).
-    `times`: seconds per saved round, by its number as str; round 0 is the initialisation."""
-    if rounds_left <= 0:
-        return "eta 0s"
-    same = first_steps in (None, round_steps)
-    like = [v for k, v in times.items() if int(k) >= 2 or (k == "1" and same)]
-    if like:
-        return f"eta <= {eta_s(sum(like), len(like), rounds_left):.0f}s"
-    if "1" in times:
-        return f"eta <= ~{eta_s(times['1'] * round_steps / first_steps, 1, rounds_left):.0f}s"
-    return "eta -"
-
-
 def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: threading.Event | None = None) -> dict:
     """Run (or resume, or load) one GES stage 1; returns its summary with the wall time of its rounds. A set
     `stop` ends it after its next saved round (another run beside it failed)."""
@@ -532,14 +500,13 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
         times[str(r)] = time.time() - last[0]
         last[0] = time.time()
         write_json(times_path, times)
-        eta = ges_round_eta(times, config.max_rounds - r, p.ges_first_round_steps, p.ges_round_steps)
+        eta = round_eta(times, config.max_rounds - r, p.ges_first_round_steps, p.ges_round_steps)
         say(f"  GES {name}: {msg}  ({eta}: {config.max_rounds} rounds at most)")
         kill_hook(f"ges:{name}:round{r}")
         if stop is not None and stop.is_set():
             raise RuntimeError(f"GES {name} stopped after round {r}: a GES run beside it failed")
 
-    warm = (ppo.scored_path(policy_dir(run, f"mlp-{task}-{sp}") + "/policy.pt", p.policy_rule)
-            if p.ges_warm_start else "")
+    warm = ppo.scored_path(policy_ckpt(run, f"mlp-{task}-{sp}"), p.policy_rule) if p.ges_warm_start else ""
     trainer = TrainSpecialist(task, space, p.ges_round_steps, p, warm, p.ges_first_round_steps, label=name)
     res = ges.run_ges(space, trainer, ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
@@ -560,29 +527,14 @@ def ges_core_seconds(run_dir: str) -> float:
 
 
 def ges_runs(run: Run, specs: list, label: str) -> dict:
-    """Several GES runs on one pool of workers, side by side: each run in a thread of this process submits its
-    round's K specialists (then its probes) to the shared pool, so while one run waits on its last specialist
-    (K = 3 on 2 cores) another run's job takes the idle core [ours: docs/presets.md]. A run's numbers depend on its
-    seed alone, not on the interleaving. When one run fails, the others stop after their next saved round (a
-    rerun resumes every run). With one worker (jobs run inline, in the calling thread) the runs go one by one."""
-    names, prog, stop = [ges_name(*sp) for sp in specs], Progress(label, len(specs), every=0), threading.Event()
-    out = {}
+    """Several GES runs on one pool of workers, side by side (runkit.pool.side_by_side): each run's thread
+    submits its round's K specialists (then its probes) to the shared pool, so while one run waits on its last
+    specialist (K = 3 on 2 cores) another run's job takes the idle core [ours: docs/presets.md]. A run's numbers
+    depend on its seed alone, not on the interleaving; when one fails, the others stop after their next saved
+    round (a rerun resumes every run). With one worker (jobs run inline) the runs go one by one."""
     with run.pool() as ex:
-        if isinstance(ex, ges.SerialExecutor):
-            for i, (sp, name) in enumerate(zip(specs, names)):
-                out[name] = ges_run(run, *sp, ex)
-                prog(i + 1, name)
-            return out
-        with ThreadPoolExecutor(len(specs)) as threads:
-            futures = {threads.submit(ges_run, run, *sp, ex, stop): name for sp, name in zip(specs, names)}
-            try:
-                for i, f in enumerate(as_completed(futures)):
-                    out[futures[f]] = f.result()
-                    prog(i + 1, futures[f])
-            except BaseException:
-                stop.set()
-                raise
-    return {name: out[name] for name in names}
+        jobs = {ges_name(*sp): functools.partial(ges_run, run, *sp, ex) for sp in specs}
+        return side_by_side(jobs, Progress(label, len(specs), every=0), isinstance(ex, ges.SerialExecutor))
 
 
 def stage_ges(run: Run) -> dict:
@@ -733,7 +685,7 @@ def stage_table2(run: Run) -> dict:
         g = np.array(cell["ges"]["scores"])
         cell["ges_wins"] = {m: wins(g, np.array(cell[m]["scores"])) for m in ("baseline", "mlp", "moe")}
     specs = [SearchSpec(run.out, run.preset, run.seed, t, s, m) for t in TASKS for s in SPACES
-             for m in ("mlp", "moe", "ges")]
+             for m in SEARCHED]
     out["peaks"] = run_searches(run, specs)
     write_test_csv(run, out)
     return out
@@ -806,8 +758,9 @@ class PerDesignBO:
 
     def __call__(self, theta):
         full, name, folder = self.space.full(theta), self.name(theta), self.folder(theta)
-        ckpt = train_policy(folder, "mlp", self.task, ballu.FixedDesign(full[0]), self.run.preset.ppo_steps,
-                            self.run.preset, derive_seed(self.run.seed, "bo", name), 1, f"bo {name}")
+        ckpt = train_policy(os.path.join(folder, "policy.pt"), "mlp", self.task, ballu.FixedDesign(full[0]),
+                            self.run.preset.ppo_steps, self.run.preset, derive_seed(self.run.seed, "bo", name),
+                            f"bo {name}")
         t0 = time.time()
         y = PolicyJ(ppo.load_policy(ppo.scored_path(ckpt, self.run.preset.policy_rule)), self.space, self.task,
                     self.run.preset)(theta)
@@ -833,8 +786,8 @@ def stage_cost(run: Run) -> dict:
     Both sides are counted in core-seconds under one layout [ours]: every job (a policy's training,
     a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
     once as there are workers, and is timed where it runs (a training that a kill split: every attempt, by
-    train_seconds). The paper compares wall hours on its machine; with jobs of unequal width (before: a BO trial
-    stepping its env on both cores, GES's jobs sharing them) wall times compare layouts, not methods. BO's
+    train_seconds). The paper compares wall hours on its machine; with jobs of unequal width (a BO trial stepping
+    its env on both cores, GES's jobs sharing them) wall times would compare layouts, not methods. BO's
     startup trials are random draws independent of each other, so they run `workers` at a time
     (tpe.startup_batch: the same trials as one at a time)."""
     p = run.preset
@@ -1056,7 +1009,7 @@ def stage_figures(run: Run) -> dict:
     for t in TASKS:
         logs = [("baseline design", [run.path("policies", f"baseline-{t}", "log.csv")])]
         logs += [(f"{m} {s}", [run.path("policies", f"{m}-{t}-{s}", "log.csv")])
-                 for s in SPACES for m in ("mlp", "moe")]
+                 for s in SPACES for m in E2E]
         figs[f"curves-e2e-{t}"] = fig_curves(logs, os.path.join(cdir, f"e2e_{t}.png"),
                                              f"{t}: baseline-design policy, e2e MLP and MoE")
     for name in sorted(os.listdir(run.path("ges"))):
@@ -1086,78 +1039,6 @@ def stage_result(run: Run, name: str):
     return read_back(path, stage_json, fix=f"delete it to redo stage {name}") if os.path.exists(path) else None
 
 
-def report_header(run: Run, manifest: dict) -> list:
-    p = run.preset
-    return [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
-            "Every cell is **ours (paper)**. Paper numbers are constants in report/paper.py quoted from "
-            "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
-            "budgets below). '-' = not measured yet / not given by the paper.", "",
-            f"- seed {run.seed}; git commit {git_commit(HERE)} (results folder created at {manifest['git_commit']}); "
-            f"code hash {manifest['code_hash']}",
-            f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
-            f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
-            + {"task": "at uniform levels up to the score's start level on the ramp, at level 0 on the obstacle "
-                       "(ours, the PPO protocol)",
-               "spread": "at uniform levels up to the score's start level (ours, the PPO protocol)",
-               "zero": "at level 0"}[p.ppo_start] + "); GES "
-            + (f"{p.ges_first_round_steps:,} steps per specialist in round 0 (facts: the authors' first round is "
-               "3.2x the later ones), then " if p.ges_first_round_steps is not None else "")
-            + f"{p.ges_round_steps:,} steps per specialist per round, <= {p.ges_max_rounds} rounds, "
-            + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
-               if p.ges_warm_start else "") +
-            f"F = {p.ges_probes} probes of {p.ges_probe_pool}, {p.ges_init_designs} seed designs per territory "
-            f"(facts: 50{'' if p.ges_init_designs == 50 else '; ours: coverage growth is set by F / n_init'}), "
-            f"target coverage {p.ges_target_coverage:.0%}, "
-            f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
-            f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}", ""]
-
-
-def score_text(p: Preset) -> str:
-    """How this preset scores, in the report's words (start level and probe schedule when they are ours)."""
-    facts = " / ".join(f"{v} ({t})" for t, v in ballu.SCORE_START_LEVEL.items())
-    start = f"{p.score_start_level} (ours; facts: {facts})" if p.score_start_level is not None else facts
-    probe = (f"; GES probes scored with level steps {list(p.probe_level_steps)} (ours; paper: the 20-episode J)"
-             if p.probe_level_steps else "")
-    return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
-
-
-def ppo_rate(run: Run) -> tuple:
-    """(control steps/s per PPO job, training logs read) over every training this run made: the harmonic mean of
-    its logs' per-update rates (every update of a policy trains the same batch), so the plan's TRAIN_RATE can be
-    checked against how fast this machine ran. Other CSV files and damaged logs are skipped."""
-    rates = []
-    for path in glob.glob(run.path("**", "*.csv"), recursive=True):   # policies' log.csv, specialists' *.ckpt.csv
-        try:
-            rates.append(read_log(path)["steps_per_s"])
-        except (ValueError, KeyError, OSError):   # not a training log, or a damaged one
-            continue
-    r = np.concatenate(rates) if rates else np.zeros(0)
-    r = r[np.isfinite(r) & (r > 0)]
-    return (len(r) / np.sum(1.0 / r) if len(r) else float("nan")), len(rates)
-
-
-def report_wall(run: Run, times: dict) -> list:
-    """Each stage's wall time beside --plan's at this attempt's workers, and the PPO rate the run trained at
-    beside the plan's: a stage over its plan on a machine running below the plan's rates says the machine, not
-    the plan, was slow (docs/presets.md: this machine drifts +-20 % and more)."""
-    plan_s = {n: 3600 * v["hours"] for n, v in plan(run.preset, max(1, run.workers)).items()}
-    ratio = lambda s, p: f"{s / p:.2f}" if p else "-"   # noqa: E731
-    rows = [[n, f"{times[n]:.0f} s", f"{plan_s[n]:.0f} s" if n in plan_s else "-", ratio(times[n], plan_s.get(n))]
-            for n in STAGES if n in times]
-    total = sum(times.values())   # the plan over the same stages, so a run under way compares like with like
-    total_plan = sum(v for n, v in plan_s.items() if n in times)
-    rows.append(["total", f"{total:.0f} s = {total / 3600:.2f} h", f"{total_plan:.0f} s = {total_plan / 3600:.2f} h",
-                 ratio(total, total_plan)])
-    rate, logs = ppo_rate(run)
-    lines = ["## Wall time per stage (all attempts)", "",
-             f"Plan: `python run_all.py --preset {run.preset.name} --plan --workers {run.workers}` (GES at its round "
-             f"cap; at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control steps/s per core)."]
-    if logs:
-        lines += [f"PPO trained at {rate:.0f} control steps/s per job in this run ({logs} training logs; harmonic "
-                  f"mean of their updates), {100 * rate / TRAIN_RATE:.0f} % of the plan's {TRAIN_RATE:.0f}."]
-    return lines + [""] + md_table(["stage", "wall time", "plan", "measured / plan"], rows)
-
-
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
@@ -1165,13 +1046,15 @@ def report(run: Run, manifest: dict) -> str:
     sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", lambda r: report_ksens(r, run.preset)),
                 ("ges", lambda r: report_ges_runs(r, run.preset)), ("cost", report_cost), ("figures", report_figures)]
-    lines = report_header(run, manifest)
+    lines = report_header(run.preset, run.seed, git_commit(HERE), manifest)
     if any(results.values()):
         lines += report_claims(results)
     for name, write in sections:
         if results[name]:
             lines += write(results[name])
-    lines += report_wall(run, times)
+    lines += report_wall(times, plan_seconds(run.preset, LAYOUT, max(1, run.workers)), STAGES,
+                         f"python run_all.py --preset {run.preset.name} --plan --workers {run.workers}",
+                         training_rate(run.out))
     text = "\n".join(lines).rstrip("\n") + "\n"
     tmp = run.path(f"REPORT.md.tmp{os.getpid()}")   # atomic, as every write of a run
     with open(tmp, "w") as fh:
@@ -1182,7 +1065,7 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. Machinery: seeds, work files, the files a Dask cluster gets, the plan of a preset and the rates it uses
+# 6. Machinery: seeds, work files, the files a Dask cluster gets, the job --rates times (runkit.plan)
 # ----------------------------------------------------------------------------------------------------------
 def derive_seed(seed: int, *names) -> int:
     """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
@@ -1233,113 +1116,14 @@ def code_hash() -> str:
     return h.hexdigest()[:16]
 
 
-# --- what a preset costs: the arithmetic behind every preset's wall time, in code ----------------------------------
-# [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
-# busy, each kind of policy on each task), measured by `python run_all.py --rates` (docs/presets.md).
-TRAIN_RATE, SCORE_RATE = 880.0, 840.0
-# [ours] the PPO rate whole runs trained at: 639 (quick) and 668 (overnight, seed 0) control steps/s per job, their
-# REPORT.md's rate line; hours of training run slower than --rates' minutes. --plan gives both (docs/presets.md).
-RUN_RATE = 650.0
-# [ours] share of a J's episodes that ballu.score plays (`reuse` replays the rest exactly): the larger of two
-# measurements, since the plan is an upper bound (docs/presets.md). The step counts below stay every episode's.
-SCORE_PLAYED = 0.66
-
-
-def played_share(preset: Preset) -> float:
-    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
-    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
-
-
-# [ours] how much faster a job runs while the other cores idle than beside busy ones: 2 workers do 1.68x one
-# (`python ballu.py --bench`, docs/speed), so a lone job on 2 cores runs 2 / 1.68 = 1.19x the per-core rate.
-# With it, each run's waves counted as they ran then (one run after another), the overnight run's Fig. 7 stage
-# (K = 1, 2, 4, 5, 6 at 6, 6, 2, 2, 2 rounds) plans at 5,440 s, measured 5,327; perfect packing: 5,020
-# (docs/presets.md).
-ALONE_SPEEDUP = 2 / 1.68
-
-# Fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import torch and
-# pybullet), once per pool a stage starts, and the figures stage (docs/presets.md).
-POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
-POOL_START_S, FIGURES_S = 2.0, 40.0
-
-
-def plan(preset: Preset, workers: int = 2, train_rate: float = TRAIN_RATE, score_rate: float = SCORE_RATE) -> dict:
-    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
-    trials) and GES probes, and the hours on `workers` cores at the given per-core rates, scores at the share of
-    episodes that score's reuse plays (SCORE_PLAYED). Jobs pack onto the cores as the stages run them: a stage's
-    GES runs go side by side, their specialists of a round `workers` at a time (Table III's one other run of K = 3
-    on 2 cores: two waves, a core idle in the second), Table III's and Fig. 7's score sets side by side,
-    per-design BO's random startup trials `workers` at a time and its TPE trials one at a time; everything else
-    packs perfectly.
-    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
-    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
-    figures stage (FIGURES_S)."""
-    p, episode = preset, ballu.BalluConfig().episode_steps
-    J = p.score_episodes * episode                                            # one design's score J
-    peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
-    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
-
-    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
-        return np.array([sum(K * p.ges_steps(p.ges_max_rounds) for K in Ks), 0,
-                         sum(K * p.ges_probes * probe_J for K in Ks) * p.ges_max_rounds])
-
-    def idle(n):   # jobs' worth of core time n equal jobs leave idle, run `workers` at a time; a last, partial
-        # wave's jobs run ALONE_SPEEDUP x faster on the emptier machine
-        return workers * (n // workers) + (workers / ALONE_SPEEDUP if n % workers else 0) - n
-
-    cells = len(TASKS) * len(SPACES)
-    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
-    work = {"baselines": np.array([len(TASKS) * (1 + 2 * len(SPACES)) * p.ppo_steps, 0, 0]),
-            "ges": ges([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
-            "table2": np.array([0, (len(TASKS) + cells * len(METHODS) * p.n_test + cells * 3 * p.tpe_trials) * J
-                                + cells * 3 * peak_J, 0]),
-            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
-            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
-            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
-    # control steps the idle cores could have done: a stage's GES runs side by side (ges_runs), their specialists
-    # in waves of `workers` each round; its score sets side by side
-    spec = p.ges_steps(p.ges_max_rounds)
-    ges_idle = lambda Ks: np.array([idle(sum(Ks)) * spec, 0, 0])   # noqa: E731
-    waste = {"ges": ges_idle([p.K_d2 if s == "d2" else p.K_d3 for t in TASKS for s in SPACES]),
-             "table3": ges_idle([p.K_d2] * other_inits) + [0, idle(other_inits) * p.n_test * J, 0],
-             "ksens": ges_idle(other_K) + [0, idle(len(other_K)) * p.n_test * J, 0]}
-    played = played_share(p)
-    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
-    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
-    startup = min(p.cost_trials, p.tpe_startup)
-    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
-    def hours(stage):
-        b = work[stage] + waste.get(stage, 0)
-        return ((b[0] / train_rate + played * (b[1] + b[2]) / score_rate) / width.get(stage, workers)
-                + fixed[stage]) / 3600
-
-    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
-                    "hours": hours(stage)} for stage, w in work.items()}
-
-
-def plan_text(preset: Preset, workers: int = 2) -> str:
-    rows = plan(preset, workers)
-    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
-             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
-             f"{preset.ges_max_rounds}):"]
-    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
-              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
-    total = sum(v["hours"] for v in rows.values())
-    slow = RUN_RATE / TRAIN_RATE   # scores taken as slowed alike: the whole machine ran slower
-    run_h = sum(v["hours"] for v in plan(preset, workers, RUN_RATE, SCORE_RATE * slow).values())
-    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
-                              f"({total * workers:.1f} core-hours)",
-                              f"  {run_h:.2f} h at the {RUN_RATE:.0f} PPO control steps/s per core whole runs "
-                              f"trained at (RUN_RATE)"])
-
-
-def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_designs: int, seed: int) -> tuple:
+def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps: int = 40_960,
+             n_designs: int = 3) -> tuple:
     """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
     for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
     score steps/s: the steps J actually simulated, replays excluded)."""
     space = space_of(preset, task, "d2")
     t0 = time.time()
-    ckpt = train_policy(folder, kind, task, ballu.UniformDesign(space), steps, preset, seed, 1, "")
+    ckpt = train_policy(os.path.join(folder, "policy.pt"), kind, task, ballu.UniformDesign(space), steps, preset, seed)
     t1 = time.time()
     designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
     stats = {}
@@ -1350,44 +1134,6 @@ def rate_job(folder: str, kind: str, task: str, preset: "Preset", steps: int, n_
     return steps / (t1 - t0), scored / n_designs, played / scored
 
 
-# The jobs `--rates` times, as the stages mix them: each kind of policy on each task (the ramp's contacts make
-# its steps dearer than the obstacle's; docs/presets.md).
-RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
-
-
-def measure_rates(preset: "Preset", workers: int = 2, steps: int = 40_960, n_designs: int = 3,
-                  out: str | None = None, jobs: int | None = None) -> dict:
-    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
-    RATE_JOBS, each kind on each task), `workers` side by side, each training then scoring. SCORE_RATE is the
-    rate of the score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on
-    how much a policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED)."""
-    import tempfile
-    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
-    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
-    ex = Run(folder, preset, 0, workers).pool()
-    try:
-        futs = [ex.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, preset, steps, n_designs, i)
-                for i, (kind, task) in enumerate(todo)]
-        res = [f.result() for f in futs]
-    finally:
-        ex.shutdown(wait=True)
-        if out is None:
-            shutil.rmtree(folder, ignore_errors=True)
-    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
-    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
-            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
-            "score_rate": float(np.mean(played))}
-
-
-def rates_text(r: dict) -> str:
-    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
-                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
-                                           r["played_steps_per_s"]))
-    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
-            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
-            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
-
-
 # ----------------------------------------------------------------------------------------------------------
 # 7. Command line: check the arguments and the output folder, run the stages, write the report
 # ----------------------------------------------------------------------------------------------------------
@@ -1395,7 +1141,7 @@ def parse(argv):
     ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
     ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "
-                    "--workers cores at the measured rates (run_all.TRAIN_RATE, SCORE_RATE), then exit")
+                    "--workers cores at the measured rates (runkit.plan.TRAIN_RATE, SCORE_RATE), then exit")
     ap.add_argument("--rates", action="store_true", help="measure those rates with the preset's batch: an e2e MLP "
                     "and MoE on each task, --workers side by side, each training 40,960 PPO steps and scoring 3 "
                     "designs (~4 min), then exit")
@@ -1479,7 +1225,7 @@ def repair(run: Run) -> None:
         redo_if_damaged(os.path.join(d, "round_seconds.json"), part="counting its round times from now on")
     if stage_result(run, "baselines"):   # a finished stage is skipped: retrain a damaged policy here
         for job in baseline_jobs(run):
-            if not os.path.exists(policy_dir(run, job[0]) + "/policy.pt"):
+            if not os.path.exists(policy_ckpt(run, job[0])):
                 say(f"warning: policies/{job[0]}/policy.pt is missing: retraining it")
             train_baseline(run, *job)
 
@@ -1512,10 +1258,11 @@ def main(argv=None) -> int:
             raise BadInput(f"--workers {args.workers} must be >= 1")
         stop_by = stop_time(args.stop_by) if args.stop_by else None
         if args.plan:
-            print(plan_text(preset, args.workers), flush=True)
+            print(plan_text(preset, LAYOUT, args.workers), flush=True)
             return 0
         if args.rates:
-            print(rates_text(measure_rates(preset, args.workers)), flush=True)
+            job, pool = functools.partial(rate_job, preset=preset), Run("", preset, 0, args.workers).pool()
+            print(rates_text(measure_rates(job, pool, args.workers)), flush=True)
             return 0
         stages = check_args(args)
         manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
@@ -1530,7 +1277,7 @@ def main(argv=None) -> int:
         t0 = time.time()
         say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
             f"stages {stages}" + (f"; no job starts after {clock_text(stop_by)}" if stop_by else ""))
-        planned = {k: 3600 * v["hours"] for k, v in plan(preset, args.workers).items()}
+        planned = plan_seconds(preset, LAYOUT, args.workers)
         todo, ran = [s for s in stages if not stage_done(out, s)], {}
         recorded = functools.partial(stage_times, run.path("stage_seconds.json"))
         if todo:

@@ -1,4 +1,4 @@
-"""The project's tests, one file grouped by module: ballu.py, ppo.py, ges.py, tpe.py, run_all.py.
+"""The project's tests, one file grouped by module: ballu.py, ppo.py, ges.py, tpe.py, run_all.py, runkit/, report/.
 
 Run: pytest -q test_ges.py
 """
@@ -30,8 +30,8 @@ import ges
 import ppo
 import run_all
 from experiments import ballu_capability, ppo_ballu, ppo_protocol, probe_agreement
-from report import tables
-from runkit import logs, pool, progress
+from report import figures, tables
+from runkit import logs, plan, pool, progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
 from ballu import BASELINE, BalluConfig, BalluEnv
@@ -2890,11 +2890,11 @@ def test_runkit_eta_against_schedules_with_known_answers(capsys):
     assert 49_500 < eta < 50_000 and "x 9.9" in text, text
 
 
-def test_run_all_ges_round_eta_paces_later_rounds_by_their_own_size():
+def test_runkit_progress_round_eta_paces_later_rounds_by_their_own_size():
     """Quick's first training round trains 200k steps per specialist, the later ones 10k: after round 1 (2,000 s)
     one round left is ~100 s, not 2,000; after round 2 (150 s) the same-sized round sets the pace; rounds all
     alike pace on every training round; round 0 (the initialisation) never counts."""
-    eta = run_all.ges_round_eta
+    eta = progress.round_eta
     assert eta({"0": 5.0, "1": 2000.0}, 1, 200_000, 10_000) == "eta <= ~100s"
     assert eta({"0": 5.0, "1": 2000.0, "2": 150.0}, 2, 200_000, 10_000) == "eta <= 300s"
     assert eta({"0": 5.0, "1": 100.0, "2": 120.0}, 2, None, 10_000) == "eta <= 220s"
@@ -2918,24 +2918,26 @@ def test_runkit_progress_counts_parallel_and_loaded_units(capsys):
     assert etas[:2] == ["-", "-"] and abs(float(etas[2].rstrip("s")) - 700) < 5, etas
 
 
-def test_run_all_rates_time_each_kind_on_each_task(tmp_path):
+def test_runkit_plan_rates_time_each_kind_on_each_task(tmp_path):
     """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: its jobs mix the
-    policy kinds and tasks as the stages do, each job trains and scores, and the text sets the measured rates
-    beside the constants --plan uses."""
-    r = run_all.measure_rates(run_all.SMOKE, workers=1, steps=128, n_designs=1, out=str(tmp_path), jobs=2)
+    policy kinds and tasks as the stages do, each job (run_all.rate_job) trains and scores, and the text sets the
+    measured rates beside the constants --plan uses."""
+    job = functools.partial(run_all.rate_job, preset=run_all.SMOKE, steps=128, n_designs=1)
+    r = plan.measure_rates(job, ges.SerialExecutor(), 1, str(tmp_path), jobs=2)
     assert r["jobs"] == ["mlp obstacle", "moe ramp"]
     rates = np.array([r["train_steps_per_s"], r["seconds_per_J"], r["played_steps_per_s"]])
     assert rates.shape == (3, 2) and np.all(np.isfinite(rates)) and np.all(rates > 0), rates
-    text = run_all.rates_text(r)
-    assert f"TRAIN_RATE {r['train_rate']:.0f}" in text and f"{run_all.TRAIN_RATE:.0f}" in text, text
+    text = plan.rates_text(r)
+    assert f"TRAIN_RATE {r['train_rate']:.0f}" in text and f"{plan.TRAIN_RATE:.0f}" in text, text
+    assert all(os.path.exists(tmp_path / f"job{i}" / "log.csv") for i in (0, 1))   # out= keeps the jobs' files
 
 
 @pytest.mark.slow
-def test_run_all_plan_counts_the_work_a_run_does(smoke_run, capsys):
+def test_runkit_plan_counts_the_work_a_run_does(smoke_run, capsys):
     """--plan's arithmetic (presets planned on measured rates) against what the smoke run did: the
     standalone policies' PPO steps, and the control steps of every stored score (score sets and TPE trials),
     with the GES probes at most the plan's round cap."""
-    pl, p = run_all.plan(run_all.SMOKE), run_all.SMOKE
+    pl, p = plan.plan(run_all.SMOKE, run_all.LAYOUT), run_all.SMOKE
     ep = ballu.BalluConfig().episode_steps
     names = [name for name, *_ in run_all.baseline_jobs(run_all.Run(smoke_run, p, 3, 1))]
     steps = sum(ppo.load_checkpoint(os.path.join(smoke_run, "policies", n, "policy.pt"))["steps"] for n in names)
@@ -2973,8 +2975,7 @@ def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     shutil.copy(a, b)               # round 1's output cut short at 192 of its 256 steps: retrained from round 0's
     train(0, 1, sampler, a, b)
     assert [ppo.load_checkpoint(f)["steps"] for f in (a, b)] == [192, 256] == [p.ges_steps(1), p.ges_steps(2)]
-    K = p.K_d2 + p.K_d3
-    assert run_all.plan(p)["ges"]["ppo_steps"] == 2 * K * p.ges_steps(p.ges_max_rounds)
+    assert plan.plan(p, run_all.LAYOUT)["ges"]["ppo_steps"] == 4608   # 2 tasks x (3 + 6) specialists x 256
 
 
 @pytest.mark.slow
@@ -3013,7 +3014,7 @@ def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypat
         sx, sy = ppo.load_checkpoint(x), ppo.load_checkpoint(y)
         assert sx["steps"] == sy["steps"] and sx["extra"] == sy["extra"]
         assert all(torch.equal(sx["policy"][k], sy["policy"][k]) for k in sx["policy"])
-    la, lb = (run_all.read_log(f + ".csv") for f in (a, b))
+    la, lb = (logs.read_log(f + ".csv") for f in (a, b))
     assert la["steps"].tolist() == lb["steps"].tolist() == [128 + 64 * i for i in range(1, 7)]
     assert la["mean_level"].tolist() == lb["mean_level"].tolist()
     wall = lb["wall_s"].astype(float)
@@ -3023,36 +3024,65 @@ def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypat
     assert run_all.ges_core_seconds(str(tmp_path / "b")) == pytest.approx(1.5 + wall[3] + wall[5])
 
 
-def test_run_all_plan_packs_specialists_as_the_stages_run_them():
+def test_runkit_plan_packs_specialists_as_the_stages_run_them():
     """A stage's GES runs go side by side, their specialists `workers` at a time: on 2 cores the ges stage's 18
     specialists (3 + 6 per task) pack perfectly, Fig. 7's lone K = 1 run trains one specialist on an otherwise idle
     machine (ALONE_SPEEDUP x the per-core rate), Table III's lone K = 3 run in two waves; on 1 core, one by one."""
     p = replace(run_all.QUICK, ksens_K=(1, 3), table3_inits=("grid", "fps+lloyd"), ges_probes=0, n_test=0)
-    spec, rate = p.ges_steps(p.ges_max_rounds), run_all.TRAIN_RATE
+    spec, rate = p.ges_steps(p.ges_max_rounds), plan.TRAIN_RATE
 
     def seconds(stage, workers):   # without the process pool's start
-        pools = run_all.POOLS[stage] * run_all.POOL_START_S * (workers > 1)
-        return run_all.plan(p, workers)[stage]["hours"] * 3600 - pools
+        pools = plan.POOLS[stage] * plan.POOL_START_S * (workers > 1)
+        return plan.plan(p, run_all.LAYOUT, workers)[stage]["hours"] * 3600 - pools
     assert seconds("ges", 2) == pytest.approx(18 * spec / rate / 2)
-    assert seconds("ksens", 2) == pytest.approx(spec / rate / run_all.ALONE_SPEEDUP)
-    assert seconds("table3", 2) == pytest.approx((spec + spec / run_all.ALONE_SPEEDUP) / rate)
+    assert seconds("ksens", 2) == pytest.approx(spec / rate / plan.ALONE_SPEEDUP)
+    assert seconds("table3", 2) == pytest.approx((spec + spec / plan.ALONE_SPEEDUP) / rate)
     assert [seconds(s, 1) for s in ("ges", "ksens", "table3")] == pytest.approx([18 * spec / rate, spec / rate,
                                                                                  3 * spec / rate])
 
 
-def test_run_all_plan_runs_per_design_bo_as_the_cost_stage_does():
+def test_runkit_plan_runs_per_design_bo_as_the_cost_stage_does():
     """Per-design BO runs its random startup trials `workers` at a time and its TPE trials one at a time, each
     TPE trial waiting for the last one's result: on 2 cores, 3 random trials take two trial-times, 1 random +
     2 TPE trials three, 4 random (of 10) two."""
     def hours(**kw):
-        return run_all.plan(replace(run_all.QUICK, **kw), 2)["cost"]["hours"] - run_all.POOL_START_S / 3600
+        return plan.plan(replace(run_all.QUICK, **kw), run_all.LAYOUT, 2)["cost"]["hours"] - plan.POOL_START_S / 3600
     one = hours(cost_trials=1, tpe_startup=1)
     assert hours(cost_trials=3, tpe_startup=3) == pytest.approx(2 * one)
     assert hours(cost_trials=3, tpe_startup=1) == pytest.approx(3 * one)
     assert hours(cost_trials=4, tpe_startup=10) == pytest.approx(2 * one)
 
 
-def test_run_all_ppo_rate_is_total_steps_over_total_time(tmp_path):
+def test_runkit_plan_of_a_small_preset_by_hand():
+    """plan's steps and hours for a preset of small numbers, counted by hand: 2 tasks x 2 spaces, 10-step
+    episodes; specialists train 30 + 10 steps at the cap of 2 rounds; 1 core at 100 PPO steps/s and 66 score
+    steps/s, scores playing 66 % of their steps (2 episodes each): every stage's seconds are its steps / 100."""
+    p = replace(run_all.SMOKE, ppo_steps=100, ges_first_round_steps=30, ges_round_steps=10, ges_max_rounds=2,
+                score_episodes=2, peak_episodes=3, probe_level_steps=(2,), ges_probes=5, n_test=4, tpe_trials=6,
+                tpe_startup=2, cost_trials=3, table3_inits=("grid", "fps+lloyd"), ksens_K=(1, 3))
+    layout = plan.Layout(tasks=2, spaces=2, e2e=2, methods=4, searched=3, episode_steps=10)
+    rows = plan.plan(p, layout, 1, train_rate=100.0, score_rate=66.0)
+    steps = {k: (v["ppo_steps"], v["score_steps"], v["probe_steps"]) for k, v in rows.items()}
+    assert steps == {
+        "baselines": (1000, 0, 0),      # 2 tasks x (1 baseline design + 2 e2e x 2 spaces) x 100
+        "ges": (720, 0, 1800),          # 18 specialists (3 + 6 per task) x 40; x 5 probes x 10 steps x 2 rounds
+        "table2": (0, 3120, 0),         # (2 + 4 cells x 4 methods x 4 designs + 4 x 3 searches x 6 trials) x 20
+                                        # + 4 x 3 peaks x 30
+        "table3": (120, 80, 300),       # grid's K = 3 run: 3 x 40; 4 designs x 20; 3 x 5 x 10 x 2
+        "ksens": (40, 80, 100),         # K = 1's run: 40; 4 x 20; 1 x 5 x 10 x 2
+        "cost": (300, 60, 0),           # 3 BO trials: 3 x 100 PPO steps, 3 x 20 score steps
+        "figures": (0, 0, 0)}
+    seconds = {k: 3600 * v["hours"] for k, v in rows.items()}
+    assert seconds == pytest.approx({"baselines": 10.0, "ges": 25.2, "table2": 31.2, "table3": 5.0, "ksens": 2.2,
+                                     "cost": 3.6, "figures": 40.0})   # figures: FIGURES_S, a fixed cost
+    two = plan.plan(p, layout, 2, train_rate=100.0, score_rate=66.0)
+    # table3's 3 specialists on 2 cores: a wave of 2, then 1 alone at 2 / 1.68 the per-core rate: 2 + 1.68 core
+    # turns for 3 jobs' work, 0.68 of a 40-step specialist idle; its one score set alone, 1.68 - 1 idle
+    assert 3600 * two["table3"]["hours"] == pytest.approx(((120 + 0.68 * 40) / 100 + (80 + 0.68 * 80 + 300) / 100)
+                                                          / 2 + 2 * 2.0)   # + 2 process pools' start
+
+
+def test_runkit_logs_training_rate_is_total_steps_over_total_time(tmp_path):
     """The report's PPO rate is every training's steps over its time: with one batch per update, the harmonic mean
     of the logs' update rates (updates at 100, 300, 200 and a specialist's 400 steps/s of 600 steps: 2,400 steps in
     12.5 s). A damaged log or another CSV file is skipped, not fatal."""
@@ -3064,9 +3094,8 @@ def test_run_all_ppo_rate_is_total_steps_over_total_time(tmp_path):
     (tmp_path / "ges" / "x" / "ckpt" / "spec0_round00.ckpt.csv").write_text("steps,wall_s,steps_per_s\n600,1,400\n")
     (tmp_path / "ges" / "x" / "log.csv").write_text("steps,wall_s,steps_per_s\n600,1.0\n")   # a short row
     (tmp_path / "test_scores.csv").write_text("task,J\nobstacle,12.5\n")                      # not a training log
-    run = run_all.Run(out=str(tmp_path), preset=run_all.SMOKE, seed=0, workers=2)
-    rate, logs = run_all.ppo_rate(run)
-    assert rate == pytest.approx(2400 / (600 / 100 + 600 / 300 + 600 / 200 + 600 / 400)) and logs == 3
+    rate, n = logs.training_rate(str(tmp_path))
+    assert rate == pytest.approx(2400 / (600 / 100 + 600 / 300 + 600 / 200 + 600 / 400)) and n == 3
 
 
 def test_report_cost_claim_needs_a_saving_beyond_the_drift():
@@ -3092,14 +3121,14 @@ def test_report_cost_claim_from_the_break_even_trial_count():
     assert lo < n < hi and hi == pytest.approx(300 / (50 - 10), rel=0.05)   # the interval's top: all trials at 50
 
 
-def test_run_all_gait_features_of_a_known_hop():
-    """Gait features of a known toe trajectory: a 2.5 Hz hop of 10 cm, both toes up part of the time."""
-    dt = ballu.BalluConfig().control_dt
-    t = np.arange(400) * dt
-    z = np.clip(0.1 * np.sin(2 * np.pi * 2.5 * t), 0, None) + 0.004
-    f = run_all.gait_features(np.stack([z, z + 0.001], axis=1), dt)
-    assert f["step_hz"] == pytest.approx(2.5) and f["peak_toe_cm"] == pytest.approx(10.4, abs=0.05)
-    assert f["airborne_pct"] == pytest.approx(100 * np.mean(z > 0.02))
+def test_report_figures_gait_features_of_a_known_hop():
+    """Gait features of a known toe trajectory: a 2.5 Hz hop of 10 cm at 0.05 s per control step, 8 steps a
+    period, toe heights 0.4 cm + 10 cm x max(0, sin(pi i / 4)): up 7.5, 10.4 and 7.5 cm at steps 1-3 of each 8,
+    on the floor (0.4 cm, under the 2 cm bar) the other 5, so both toes are up 3 / 8 = 37.5 % of the time."""
+    z = np.clip(0.1 * np.sin(np.pi * np.arange(400) / 4), 0, None) + 0.004
+    f = figures.gait_features(np.stack([z, z + 0.001], axis=1), 0.05)
+    assert f["step_hz"] == pytest.approx(2.5) and f["peak_toe_cm"] == pytest.approx(10.4)
+    assert f["airborne_pct"] == pytest.approx(37.5)
 
 
 def test_report_designs_needed_at_80_percent_power():

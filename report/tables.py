@@ -9,6 +9,7 @@ import numpy as np
 import ballu
 from report.paper import (CELLS, METHOD_NAMES, PAPER_COST, PAPER_KSENS_PEAK_K, PAPER_PEAK, PAPER_PEAK_DESIGN,
                           PAPER_TABLE1, PAPER_TABLE2, PAPER_TABLE3, PAPER_TPE_TRIALS, PAPER_WINS)
+from runkit.plan import SCORE_RATE, TRAIN_RATE
 from runkit.stats import CI_LEVEL, N_BOOT, bootstrap_ci, paired_comparison, verdict
 
 # [ours] the gait features Fig. 5's claim is measured by, in the report's words
@@ -45,6 +46,63 @@ def md_table(header: list, rows: list) -> list:
     """A markdown table as lines: the header, its rule, one line per row, and a blank line."""
     line = lambda values: "| " + " | ".join(str(v) for v in values) + " |"   # noqa: E731
     return [line(header), "|" + "---|" * len(header)] + [line(r) for r in rows] + [""]
+
+
+def report_header(p, seed: int, commit: str, manifest: dict) -> list:
+    """REPORT.md's title and the run's settings: seed, code, and every budget of preset `p` in words."""
+    return [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
+            "Every cell is **ours (paper)**. Paper numbers are constants in report/paper.py quoted from "
+            "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
+            "budgets below). '-' = not measured yet / not given by the paper.", "",
+            f"- seed {seed}; git commit {commit} (results folder created at {manifest['git_commit']}); "
+            f"code hash {manifest['code_hash']}",
+            f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
+            f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
+            + {"task": "at uniform levels up to the score's start level on the ramp, at level 0 on the obstacle "
+                       "(ours, the PPO protocol)",
+               "spread": "at uniform levels up to the score's start level (ours, the PPO protocol)",
+               "zero": "at level 0"}[p.ppo_start] + "); GES "
+            + (f"{p.ges_first_round_steps:,} steps per specialist in round 0 (facts: the authors' first round is "
+               "3.2x the later ones), then " if p.ges_first_round_steps is not None else "")
+            + f"{p.ges_round_steps:,} steps per specialist per round, <= {p.ges_max_rounds} rounds, "
+            + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
+               if p.ges_warm_start else "") +
+            f"F = {p.ges_probes} probes of {p.ges_probe_pool}, {p.ges_init_designs} seed designs per territory "
+            f"(facts: 50{'' if p.ges_init_designs == 50 else '; ours: coverage growth is set by F / n_init'}), "
+            f"target coverage {p.ges_target_coverage:.0%}, "
+            f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
+            f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}", ""]
+
+
+def score_text(p) -> str:
+    """How preset `p` scores, in the report's words (start level and probe schedule when they are ours)."""
+    facts = " / ".join(f"{v} ({t})" for t, v in ballu.SCORE_START_LEVEL.items())
+    start = f"{p.score_start_level} (ours; facts: {facts})" if p.score_start_level is not None else facts
+    probe = (f"; GES probes scored with level steps {list(p.probe_level_steps)} (ours; paper: the 20-episode J)"
+             if p.probe_level_steps else "")
+    return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
+
+
+def report_wall(times: dict, planned: dict, stages, command: str, rate: tuple) -> list:
+    """Each stage's wall time (`times`, all attempts) beside --plan's at this attempt's workers (`planned`, by
+    `command`), in `stages`' order, and the PPO rate the run trained at (`rate`: runkit.logs.training_rate)
+    beside the plan's: a stage over its plan on a machine running below the plan's rates says the machine, not
+    the plan, was slow (docs/presets.md: this machine drifts +-20 % and more)."""
+    ratio = lambda s, p: f"{s / p:.2f}" if p else "-"   # noqa: E731
+    rows = [[n, f"{times[n]:.0f} s", f"{planned[n]:.0f} s" if n in planned else "-", ratio(times[n], planned.get(n))]
+            for n in stages if n in times]
+    total = sum(times.values())   # the plan over the same stages, so a run under way compares like with like
+    total_plan = sum(v for n, v in planned.items() if n in times)
+    rows.append(["total", f"{total:.0f} s = {total / 3600:.2f} h", f"{total_plan:.0f} s = {total_plan / 3600:.2f} h",
+                 ratio(total, total_plan)])
+    ppo, logs = rate
+    lines = ["## Wall time per stage (all attempts)", "",
+             f"Plan: `{command}` (GES at its round cap; at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
+             "steps/s per core)."]
+    if logs:
+        lines += [f"PPO trained at {ppo:.0f} control steps/s per job in this run ({logs} training logs; harmonic "
+                  f"mean of their updates), {100 * ppo / TRAIN_RATE:.0f} % of the plan's {TRAIN_RATE:.0f}."]
+    return lines + [""] + md_table(["stage", "wall time", "plan", "measured / plan"], rows)
 
 
 DESIGN_WORDS = ("D2 = (gcr, spcf) with l_f = l_t = 0.45 m; D3 = (gcr, spcf, l) with l = l_f = l_t, the symmetric "

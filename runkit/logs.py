@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import glob
 import os
 
 import numpy as np
@@ -52,9 +53,9 @@ def train_seconds(log_csv: str) -> float:
 def resume_points(log_csv: str, planned=()) -> list:
     """Control steps each resumed attempt went on from (its checkpoint's): where wall_s starts again, one update
     before that attempt's first row; without those at a `planned` step (the first whole update at or past it: a
-    schedule's own continuation). Before ppo.train saved the lanes' state in its checkpoints (2026-11-27), every
-    lane started a fresh episode there, so a run resumed mid-way gave other numbers than an uninterrupted one;
-    since, a resume is exact."""
+    schedule's own continuation). A checkpoint without the lanes' state (an older ppo.train's) starts every lane
+    on a fresh episode there, so such a run gives other numbers than an uninterrupted one; with it, a resume is
+    exact."""
     log = read_log(log_csv)
     steps, wall = log["steps"].astype(int), log["wall_s"]
     if len(steps) < 2:
@@ -62,3 +63,18 @@ def resume_points(log_csv: str, planned=()) -> list:
     per_update = int(steps[1] - steps[0])
     points = [int(steps[i]) - per_update for i in range(1, len(steps)) if wall[i] < wall[i - 1]]
     return [p for p in points if not any(m <= p < m + per_update for m in planned)]
+
+
+def training_rate(folder: str) -> tuple:
+    """(control steps/s per training job, training logs read) over every training log below `folder`: the
+    harmonic mean of the logs' per-update rates (every update of a policy trains the same batch), i.e. their
+    steps over their time. Other CSV files and damaged logs are skipped."""
+    rates = []
+    for path in glob.glob(os.path.join(folder, "**", "*.csv"), recursive=True):
+        try:
+            rates.append(read_log(path)["steps_per_s"])
+        except (ValueError, KeyError, OSError):   # not a training log, or a damaged one
+            continue
+    r = np.concatenate(rates) if rates else np.zeros(0)
+    r = r[np.isfinite(r) & (r > 0)]
+    return (len(r) / np.sum(1.0 / r) if len(r) else float("nan")), len(rates)

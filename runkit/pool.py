@@ -8,7 +8,7 @@ import tempfile
 import threading
 import time
 import zipfile
-from concurrent.futures import Executor
+from concurrent.futures import Executor, ThreadPoolExecutor, as_completed
 
 from runkit.files import BadInput
 
@@ -83,6 +83,31 @@ def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
             time.sleep(every)
         os._exit(1)
     threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
+
+
+def side_by_side(jobs: dict, progress, inline: bool = False) -> dict:
+    """Long jobs that each submit their own work to one shared executor, run side by side: `jobs` maps a name to
+    fn(stop=None), each run in a thread of this process, so while one waits on its last piece of work another's
+    takes the idle core [ours]. When one fails, the others get `stop` set (a threading.Event: each ends at its
+    next safe point) and the failure is raised. `inline` (an executor that runs work in the calling thread):
+    one job after another. `progress(done, name)` after each; returns name -> result, in `jobs`' order."""
+    out = {}
+    if inline:
+        for i, (name, fn) in enumerate(jobs.items()):
+            out[name] = fn()
+            progress(i + 1, name)
+        return out
+    stop = threading.Event()
+    with ThreadPoolExecutor(len(jobs)) as threads:
+        futures = {threads.submit(fn, stop=stop): name for name, fn in jobs.items()}
+        try:
+            for i, f in enumerate(as_completed(futures)):
+                out[futures[f]] = f.result()
+                progress(i + 1, futures[f])
+        except BaseException:
+            stop.set()
+            raise
+    return {name: out[name] for name in jobs}
 
 
 class StopBy(Exception):

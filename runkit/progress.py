@@ -69,3 +69,19 @@ def run_eta(planned: dict, ran: dict, left: list, spent: dict | None = None) -> 
     return (f"whole run: eta {eta:.0f}s ({eta / 3600:.2f} h) for {len(left)} stage(s) left"
             + (f" ({before:.0f}s spent on them already)" if before else "") + ", " +
             (f"--plan's time x {ran_s / done_s:.2f} (the pace so far)" if done_plan > 0 else "--plan's time"))
+
+
+def round_eta(times: dict, rounds_left: int, first_steps: int | None, round_steps: int) -> str:
+    """'eta <= Xs' for a run of rounds (it may stop early), each later round training round_steps: at the pace
+    of the rounds of that size so far; before any, the first training round's time scaled by steps ('~': the
+    rest of a round does not scale). `times`: seconds per saved round, by its number as str; round 0 is the
+    initialisation, round 1 trains first_steps (None: round_steps)."""
+    if rounds_left <= 0:
+        return "eta 0s"
+    same = first_steps in (None, round_steps)
+    like = [v for k, v in times.items() if int(k) >= 2 or (k == "1" and same)]
+    if like:
+        return f"eta <= {eta_s(sum(like), len(like), rounds_left):.0f}s"
+    if "1" in times:
+        return f"eta <= ~{eta_s(times['1'] * round_steps / first_steps, 1, rounds_left):.0f}s"
+    return "eta -"

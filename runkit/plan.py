@@ -1,0 +1,163 @@
+"""What a preset costs: the arithmetic behind every preset's wall time (`run_all.py --plan`) and the measurement
+of the rates it uses (`--rates`). It reads a preset's numbers and the run's Layout (what every run is made of,
+counted), so it knows nothing of BALLU or GES; the numbers behind each constant: docs/presets.md."""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+
+import numpy as np
+
+# [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
+# busy, each kind of policy on each task), measured by `python run_all.py --rates` (docs/presets.md).
+TRAIN_RATE, SCORE_RATE = 880.0, 840.0
+# [ours] the PPO rate whole runs train at, below --rates' minutes (their REPORT.md's rate line, docs/presets.md):
+# --plan gives a preset's hours at both.
+RUN_RATE = 650.0
+# [ours] share of a J's episodes that ballu.score plays (`reuse` replays the rest exactly): the larger of two
+# measurements, since the plan is an upper bound (docs/presets.md). The step counts stay every episode's.
+SCORE_PLAYED = 0.66
+# [ours] how much faster a job runs while the other cores idle than beside busy ones: 2 workers do 1.68x one
+# (`python ballu.py --bench`, docs/speed), so a lone job on 2 cores runs 2 / 1.68 = 1.19x the per-core rate;
+# checked against measured stages in docs/presets.md ("How jobs pack onto the cores").
+ALONE_SPEEDUP = 2 / 1.68
+# [ours] fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import
+# torch and pybullet), once per pool a stage starts, and the figures stage (docs/presets.md).
+POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
+POOL_START_S, FIGURES_S = 2.0, 40.0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What every run is made of besides its preset's budgets, counted (run_all.LAYOUT)."""
+    tasks: int           # each with a policy of its baseline design
+    spaces: int          # design spaces per task: a (task, space) pair is a cell
+    e2e: int             # end-to-end policies per cell (e2e MLP, e2e MoE)
+    methods: int         # methods scored on a cell's test designs
+    searched: int        # methods with a TPE design search per cell
+    episode_steps: int   # control steps of one episode
+
+
+def played_share(preset) -> float:
+    """Share of a J's episodes that score plays (SCORE_PLAYED); one episode has nothing to reuse."""
+    return SCORE_PLAYED if preset.score_episodes > 1 else 1.0
+
+
+def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RATE,
+         score_rate: float = SCORE_RATE) -> dict:
+    """Upper bound of a preset's work per stage, in control steps: PPO training, scores J (test designs, TPE
+    trials) and GES probes, and the hours on `workers` cores at the given per-core rates, scores at the share of
+    episodes that score's reuse plays (SCORE_PLAYED). Jobs pack onto the cores as the stages run them: a stage's
+    GES runs go side by side, their specialists of a round `workers` at a time (Table III's one other run of K = 3
+    on 2 cores: two waves, a core idle in the second), Table III's and Fig. 7's score sets side by side,
+    per-design BO's random startup trials `workers` at a time and its TPE trials one at a time; everything else
+    packs perfectly.
+    GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
+    that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
+    figures stage (FIGURES_S)."""
+    p, episode = preset, layout.episode_steps
+    J = p.score_episodes * episode                                            # one design's score J
+    peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
+    probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
+
+    def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
+        return np.array([sum(K * p.ges_steps(p.ges_max_rounds) for K in Ks), 0,
+                         sum(K * p.ges_probes * probe_J for K in Ks) * p.ges_max_rounds])
+
+    def idle(n):   # jobs' worth of core time n equal jobs leave idle, run `workers` at a time; a last, partial
+        # wave's jobs run ALONE_SPEEDUP x faster on the emptier machine
+        return workers * (n // workers) + (workers / ALONE_SPEEDUP if n % workers else 0) - n
+
+    cells, tasks, searched = layout.tasks * layout.spaces, layout.tasks, layout.searched
+    main_K = [p.K_d2, p.K_d3] * tasks   # each task's main run in each of the preset's two spaces
+    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
+    work = {"baselines": np.array([tasks * (1 + layout.e2e * layout.spaces) * p.ppo_steps, 0, 0]),
+            "ges": ges(main_K),
+            "table2": np.array([0, (tasks + cells * layout.methods * p.n_test + cells * searched * p.tpe_trials) * J
+                                + cells * searched * peak_J, 0]),
+            "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
+            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
+            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
+    # control steps the idle cores could have done: a stage's GES runs side by side, their specialists in waves
+    # of `workers` each round; its score sets side by side
+    spec = p.ges_steps(p.ges_max_rounds)
+    ges_idle = lambda Ks: np.array([idle(sum(Ks)) * spec, 0, 0])   # noqa: E731
+    waste = {"ges": ges_idle(main_K),
+             "table3": ges_idle([p.K_d2] * other_inits) + [0, idle(other_inits) * p.n_test * J, 0],
+             "ksens": ges_idle(other_K) + [0, idle(len(other_K)) * p.n_test * J, 0]}
+    played = played_share(p)
+    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
+    # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
+    startup = min(p.cost_trials, p.tpe_startup)
+    width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
+
+    def hours(stage):
+        b = work[stage] + waste.get(stage, 0)
+        return ((b[0] / train_rate + played * (b[1] + b[2]) / score_rate) / width.get(stage, workers)
+                + fixed[stage]) / 3600
+
+    return {stage: {"ppo_steps": int(w[0]), "score_steps": int(w[1]), "probe_steps": int(w[2]),
+                    "hours": hours(stage)} for stage, w in work.items()}
+
+
+def plan_seconds(preset, layout: Layout, workers: int) -> dict:
+    """The plan's seconds per stage (the whole run's ETA and REPORT.md's wall-time table set these beside)."""
+    return {stage: 3600 * v["hours"] for stage, v in plan(preset, layout, workers).items()}
+
+
+def plan_text(preset, layout: Layout, workers: int = 2) -> str:
+    """--plan's lines: each stage's work and hours, the total at the measured rates and at RUN_RATE."""
+    rows = plan(preset, layout, workers)
+    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
+             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
+             f"{preset.ges_max_rounds}):"]
+    lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
+              f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
+    total = sum(v["hours"] for v in rows.values())
+    slow = RUN_RATE / TRAIN_RATE   # scores taken as slowed alike: the whole machine ran slower
+    run_h = sum(v["hours"] for v in plan(preset, layout, workers, RUN_RATE, SCORE_RATE * slow).values())
+    return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
+                              f"({total * workers:.1f} core-hours)",
+                              f"  {run_h:.2f} h at the {RUN_RATE:.0f} PPO control steps/s per core whole runs "
+                              f"trained at (RUN_RATE)"])
+
+
+# [ours] the jobs `--rates` times, as the stages mix them: each kind of policy on each task (the ramp's contacts
+# make its steps dearer than the obstacle's; docs/presets.md).
+RATE_JOBS = (("mlp", "obstacle"), ("moe", "ramp"), ("moe", "obstacle"), ("mlp", "ramp"))
+
+
+def measure_rates(rate_job, executor, workers: int, out: str | None = None, jobs: int | None = None) -> dict:
+    """The per-core rates `plan` uses, measured as run_all runs its jobs: `jobs` single-process jobs (default
+    RATE_JOBS, each kind on each task) on `executor`, `workers` side by side; `rate_job(folder, kind, task, seed)`
+    trains then scores and returns (PPO steps/s, s per J, played score steps/s). SCORE_RATE is the rate of the
+    score steps J actually simulated (ballu.score's reuse replays the rest), so it does not depend on how much a
+    policy this briefly trained replays; `plan` applies the trained policies' share (SCORE_PLAYED). The jobs'
+    folders go under `out` (default: a temporary folder, deleted after)."""
+    folder = out or tempfile.mkdtemp(prefix="run_all_rates_")
+    todo = [RATE_JOBS[i % len(RATE_JOBS)] for i in range(jobs or max(workers, len(RATE_JOBS)))]
+    try:
+        futs = [executor.submit(rate_job, os.path.join(folder, f"job{i}"), kind, task, i)
+                for i, (kind, task) in enumerate(todo)]
+        res = [f.result() for f in futs]
+    finally:
+        executor.shutdown(wait=True)
+        if out is None:
+            shutil.rmtree(folder, ignore_errors=True)
+    train, per_J, played = [r[0] for r in res], [r[1] for r in res], [r[2] for r in res]
+    return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
+            "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
+            "score_rate": float(np.mean(played))}
+
+
+def rates_text(r: dict) -> str:
+    """--rates' lines: each job's rates, then the measured rates beside the constants --plan uses."""
+    jobs = "; ".join(f"{j}: PPO {x:.0f} steps/s, J {y:.1f} s per design ({z:.0f} played steps/s)"
+                     for j, x, y, z in zip(r["jobs"], r["train_steps_per_s"], r["seconds_per_J"],
+                                           r["played_steps_per_s"]))
+    return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
+            f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
+            f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
