@@ -312,7 +312,7 @@ class BalluConfig:
     neck_xz: tuple = (0.0044, 0.015)
     # knee law  [facts]
     # Spring preload q0 = 72.35 deg as the authors' robot configuration and morphology loader set it [facts];
-    # an earlier reading of their code gave pi/4 (45 deg), kept as the value to pass for the old robot.
+    # pi/4 (45 deg) is the previous robot's (PREVIOUS_ROBOT, kept to measure against).
     spring_preload: float = math.radians(72.35)   # tau_spring = -2 k (q + q0) - spring_damping qdot
     spring_damping: float = 0.001
     pd_p: float = 1.0
@@ -385,7 +385,8 @@ class BalluConfig:
     # [facts] the authors' training starts each env's first episode at a random step of its 20 s
     # (rsl_rl's init_at_random_ep_len), so the envs' episodes do not all begin and end together: with 32 lanes
     # reset at once, a 64-step rollout would hold the same ~3 s of every episode (only approaches, or only
-    # the box). Off by default until screened (docs/ppo_protocol); `score` always plays whole episodes.
+    # the box). Off by default: screened, -0.3 +- 0.8 cm at 1 M steps, 3 seeds (docs/ppo_protocol); `score`
+    # always plays whole episodes.
     random_first_episode: bool = False
     # [ours, an option] a low-pass filter on the servo command: each control step applies
     # beta * (last applied action) + (1 - beta) * (new action clipped to [0, 1]), and the observation's "last
@@ -421,8 +422,8 @@ class BalluConfig:
     #   moves faster than `fine_speed` or would cross a limit within the step. It passes the audit as fixed 8
     #   substeps do, at ~1.7x their env rate; plain 4 overshoots (docs/capability). fine_speed 10 rad/s: its
     #   200-episode energy rises match fixed 8's (99th percentile 3.35 against 3.37 mJ; 15 rad/s: 4.05) at the
-    #   same speed within the machine's noise. substeps_fine = substeps gives a fixed count. Tried without effect on the overshoot: erp 0-0.9, 50 solver iterations, the PGS
-    #   and Dantzig MLCP solvers.
+    #   same speed within the machine's noise. substeps_fine = substeps gives a fixed count. Tried without effect
+    #   on the overshoot: erp 0-0.9, 50 solver iterations, the PGS and Dantzig MLCP solvers.
     pelvis_inertia: float = 1e-4
     substeps: int = 4
     substeps_fine: int = 8
@@ -626,7 +627,7 @@ FOOT_POINT_BELOW_TIBIA = 0.034   # [facts] the code reward's foot point: 3.4 cm 
 
 
 def reward(task, cfg: BalluConfig, s: LaneState, levels, l_t, nav_scale=1.0):
-    """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 4, label eq:reward_obs]; ramp: w1 r_nav + w2 r_vel.
+    """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 4]; ramp: w1 r_nav + w2 r_vel.
 
     reward_form="paper" (default): r_nav = -||g - s||^2 with s the pelvis in the ground plane, r_vel = v_x (the
     pelvis velocity along world x, toward the goal [ours]: the pelvis spins freely, so its own x axis is no
@@ -662,6 +663,15 @@ def reward(task, cfg: BalluConfig, s: LaneState, levels, l_t, nav_scale=1.0):
     if task == "obstacle":
         r = r + cfg.w_jump * jump
     return r * (cfg.control_dt if cfg.reward_dt_scale else 1.0)
+
+
+def tg_command(a, phase, cfg: BalluConfig):
+    """The trajectory generator (cfg.tg) [ours]: actions (c_l, c_r, f, A) and the phases (cycles) of their
+    lanes -> the two knee commands and the advanced phases."""
+    lo, hi = cfg.tg_freq
+    phase = (phase + (lo + (hi - lo) * np.clip(a[:, 2], 0, 1)) * cfg.control_dt) % 1.0
+    swing = 0.5 * np.clip(a[:, 3], 0, 1) * np.sin(2 * np.pi * phase)
+    return np.clip(a[:, :2] + swing[:, None], 0.0, 1.0), phase
 
 
 class LaneState(NamedTuple):
@@ -729,6 +739,17 @@ def obs_names(cfg: BalluConfig) -> tuple:
     return tuple(n for b in obs_blocks(cfg) for n in OBS_BLOCKS[b])
 
 
+def obs_config(names, task: str = "obstacle") -> BalluConfig:
+    """The BalluConfig (obs form, tg) whose observation has these entry names on `task`: what a checkpoint
+    that keeps its names (ppo.py) runs on. None = the paper's observation (older checkpoints)."""
+    for form in OBS_FORMS:
+        for tg in (False, True):
+            cfg = BalluConfig(task=task, obs=form, tg=tg)
+            if names is None or tuple(names) == obs_names(cfg):
+                return cfg
+    raise ValueError(f"no observation form gives the entries {tuple(names)} on task {task!r}")
+
+
 OBS_NAMES = list(obs_names(BalluConfig()))                       # the default (paper's) observation
 TG_OBS_NAMES = list(obs_names(BalluConfig(tg=True)))             # with BalluConfig.tg: its phase after a_l, a_r
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
@@ -761,12 +782,13 @@ def needs_fine_substeps(joint_states, dt: float, speed: float) -> bool:
 
 class _World:
     """One PyBullet world (a DIRECT client): ground plane, shared terrain shapes, and up to
-    `cfg.lanes_per_world` lanes stacked at the same spot, each with its own collision-filter bit."""
+    `cfg.lanes_per_world` lanes stacked at the same spot, each with its own collision-filter bit. It builds,
+    moves and loads its lanes' bodies; BalluEnv keeps their ids."""
 
     def __init__(self, cfg: BalluConfig):
         with quiet_stdout():   # PyBullet's C code prints "argv[0]=" on every connect
             self.p = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
-        p, self.cid, self.lanes = self.p, self.p._client, []
+        p, self.cid, self.lanes, self.cfg = self.p, self.p._client, [], cfg
         p.setGravity(0, 0, -cfg.gravity)
         p.setPhysicsEngineParameter(fixedTimeStep=cfg.dt, numSubSteps=bullet_substeps(cfg.substeps),
                                     numSolverIterations=cfg.solver_iterations,
@@ -779,6 +801,57 @@ class _World:
         self.box_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half)
         self.box_visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.6, 0.45, 0.3, 1])
         self.ramp_shapes = {}
+
+    def place_terrain(self, body: int, level: int, bit: int) -> int:
+        """A lane's terrain at `level` (body -1: none yet), touching collision bit `bit` only: the obstacle box
+        is moved, a ramp wedge rebuilt. Returns its body id."""
+        cfg, p = self.cfg, self.p
+        h = float(level_height(cfg.task, level))
+        if cfg.task == "obstacle":
+            if body >= 0:
+                p.resetBasePositionAndOrientation(body, [1.0, 0, h - 0.5], [0, 0, 0, 1])
+                return body
+            body = p.createMultiBody(0, self.box_shape, self.box_visual, basePosition=[1.0, 0, h - 0.5])
+            friction = cfg.friction_obstacle
+        else:
+            if level not in self.ramp_shapes:   # a wedge rising from x=0.5 to 2.0, then a vertical drop
+                w = cfg.terrain_width / 2
+                v = [[0.5, -w, 0], [2.0, -w, 0], [2.0, -w, h], [0.5, w, 0], [2.0, w, 0], [2.0, w, h]]
+                tri = [0, 1, 2, 3, 5, 4, 0, 3, 4, 0, 4, 1, 1, 4, 5, 1, 5, 2, 0, 2, 5, 0, 5, 3]
+                self.ramp_shapes[level] = (p.createCollisionShape(p.GEOM_MESH, vertices=v),
+                                           p.createVisualShape(p.GEOM_MESH, vertices=v, indices=tri,
+                                                               rgbaColor=[0.6, 0.45, 0.3, 1]))
+            if body >= 0:
+                p.removeBody(body)
+            body = p.createMultiBody(0, *self.ramp_shapes[level], basePosition=[0, 0, 0])
+            friction = cfg.friction_ramp
+        p.changeDynamics(body, -1, lateralFriction=friction)
+        p.setCollisionFilterGroupMask(body, -1, bit, bit)
+        return body
+
+    def load_robot(self, body: int, urdf_path: str, bit: int) -> int:
+        """A robot loaded from `urdf_path` in place of `body` (-1: none yet): the robot's friction, no PyBullet
+        damping [facts: see passive_damping], collisions with the ground and bit `bit`, velocity motors off
+        (force 0) so torque control acts alone. Returns its body id."""
+        cfg, p = self.cfg, self.p
+        if body >= 0:
+            p.removeBody(body)
+        b = p.loadURDF(urdf_path, [0, 0, cfg.start_z], flags=p.URDF_USE_INERTIA_FROM_FILE)
+        for link in range(-1, 5):
+            p.changeDynamics(b, link, lateralFriction=cfg.friction_robot, linearDamping=0.0, angularDamping=0.0,
+                             jointDamping=0.0)
+            p.setCollisionFilterGroupMask(b, link, bit, 1 | bit)
+        p.setJointMotorControlArray(b, JOINTS, p.VELOCITY_CONTROL, forces=[0.0] * 5)
+        return b
+
+    def reset_robot(self, body: int):
+        """A robot back at its start pose, at rest. [facts]"""
+        cfg, p = self.cfg, self.p
+        hip, knee = math.radians(cfg.start_hip_deg), math.radians(cfg.start_knee_deg)
+        p.resetBasePositionAndOrientation(body, [0, 0, cfg.start_z], [0, 0, 0, 1])
+        p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+        for j, q in ((NECK, 0.0), (HIP_L, hip), (HIP_R, hip), (KNEE_L, knee), (KNEE_R, knee)):
+            p.resetJointState(body, j, q, 0.0)
 
 
 def check_config(cfg: BalluConfig):
@@ -810,7 +883,64 @@ def check_config(cfg: BalluConfig):
     task_geometry(cfg.task)
 
 
-class BalluEnv:
+class _ExactResume:
+    """BalluEnv's saved state: ppo.train keeps it in its checkpoints, so a killed run goes on exactly as if it
+    had never stopped. Mixed into BalluEnv (below), whose lanes it saves and restores."""
+
+    def get_state(self) -> list | None:
+        """What each lane needs to go on exactly from here, in plain types (a torch checkpoint loads them with
+        weights_only; the actions as float64 bytes): its design, level, clock, random stream and its episode's
+        actions so far. [ours] Not PyBullet's own state: saveState/restoreState does not restore contacts
+        exactly (restored onto the very world it was saved from, a run diverged within 1-2 control steps at 2 of
+        3 save points, docs/ppo_protocol "Resumed runs"). An episode depends on nothing before its start (the
+        robot is dropped from start_z, so no contact survives a reset), so set_state replays the episode (test:
+        bit for bit). None where lanes share worlds (lanes_per_world > 1: a world-mate's replay would move them)."""
+        if self.cfg.lanes_per_world != 1:
+            return None
+        return [{"id": int(self.lane_ids[i]), "design": self.designs[i].tolist(), "level": int(self.levels[i]),
+                 "t": int(self.t[i]), "ep_return": float(self.ep_return[i]), "held": int(self._held[i]),
+                 "rng": self.rngs[i].bit_generator.state,
+                 "actions": np.asarray(self._ep_actions[i], dtype=np.float64).tobytes()}
+                for i in range(self.num_envs)]
+
+    def set_state(self, lanes: list):
+        """Go on from get_state()'s output: each lane's robot is put at its episode's start and its actions
+        replayed. The env must hold the same lane ids, one per world (ValueError otherwise)."""
+        ids = [int(k) for k in self.lane_ids]
+        if [lane["id"] for lane in lanes] != ids or self.cfg.lanes_per_world != 1:
+            raise ValueError(f"saved lanes {[lane['id'] for lane in lanes]} do not match this env's lanes {ids} "
+                             f"(lanes_per_world={self.cfg.lanes_per_world}, must be 1)")
+        for i, lane in enumerate(lanes):
+            self.designs[i], self.levels[i] = lane["design"], lane["level"]
+            self._set_terrain(i, lane["level"])
+            self._load_robot(i, self.designs[i])
+            self.tg_phase[i] = 0.0
+        actions = [np.frombuffer(lane["actions"], dtype=np.float64).reshape(-1, self.act_dim).tolist()
+                   for lane in lanes]
+        self._replay(actions)
+        for i, lane in enumerate(lanes):
+            self.t[i], self.ep_return[i], self._held[i] = lane["t"], lane["ep_return"], lane["held"]
+            self.rngs[i] = np.random.default_rng(0)
+            self.rngs[i].bit_generator.state = lane["rng"]
+            self._ep_actions[i] = actions[i]
+        self._ready = True
+
+    def _replay(self, actions: list):
+        """Step lane i through actions[i] from its episode's start, the lanes in lock-step aligned at their ends:
+        a lane's world steps only over its own actions. The benchmark's counters are left as they were."""
+        counters = self.sim_seconds, self.world_steps, self.fine_steps
+        T = max(map(len, actions), default=0)
+        for k in range(T):
+            lanes = np.array([i for i, acts in enumerate(actions) if k >= T - len(acts)])
+            self._command(np.array([actions[i][k - T + len(actions[i])] for i in lanes], dtype=float), lanes)
+            self._stepping = [self._world[i] for i in lanes]
+            for _ in range(self.cfg.decimation):
+                self._physics_step()
+        self._stepping = self.worlds
+        self.sim_seconds, self.world_steps, self.fine_steps = counters
+
+
+class BalluEnv(_ExactResume):
     """N BALLU robots, one lane each, stepped together in PyBullet worlds (DIRECT mode, no GUI).
 
     Lanes are grouped into worlds of `cfg.lanes_per_world`. Within a world all lanes lie on top of each other
@@ -823,7 +953,8 @@ class BalluEnv:
 
     Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training: a new draw
     every `cfg.design_hold` episodes, and at every full reset), else a lane keeps its design (scoring). With
-    `curriculum=True` each finished episode moves the lane's level.
+    `curriculum=True` each finished episode moves the lane's level. Read as reset, step, observe, physics; the
+    saved state that resumes a killed training exactly (get_state, set_state) is _ExactResume's.
     """
 
     def __init__(self, num_envs: int = 1, cfg: BalluConfig = BalluConfig(), lane_ids=None,
@@ -869,95 +1000,7 @@ class BalluEnv:
         self.train_steps = None          # the trainer's steps so far, if it tells them (schedule)
         self._stepping = self.worlds     # worlds that stepSimulation steps (see pause)
 
-    def pause(self, lanes):
-        """Stop stepping the worlds whose every lane is paused (score pauses lanes whose result is known; their
-        robots stand still, their outputs are to be ignored). Other worlds are PyBullet clients of their own,
-        so their trajectories do not change."""
-        paused = set(int(i) for i in lanes)
-        self._stepping = [w for w in self.worlds if not set(w.lanes) <= paused]
-
-    # -- world -------------------------------------------------------------------------------------------
-    def client(self, i):
-        """The PyBullet client (BulletClient) of lane i's world, for tools that inspect a robot."""
-        return self._world[i].p
-
-    def _lane_bit(self, i):
-        return 1 << (1 + i % self.cfg.lanes_per_world)
-
-    def _set_terrain(self, i, level):
-        """Place lane i's terrain for `level`: the obstacle box is moved; a ramp wedge is rebuilt."""
-        if self._terrain_level[i] == level:
-            return
-        cfg, world = self.cfg, self._world[i]
-        p = world.p
-        h = float(level_height(cfg.task, level))
-        if cfg.task == "obstacle":
-            if self.terrain[i] < 0:
-                self.terrain[i] = p.createMultiBody(0, world.box_shape, world.box_visual, basePosition=[1.0, 0, h - 0.5])
-                p.changeDynamics(self.terrain[i], -1, lateralFriction=cfg.friction_obstacle)
-                p.setCollisionFilterGroupMask(self.terrain[i], -1, self._lane_bit(i), self._lane_bit(i))
-            else:
-                p.resetBasePositionAndOrientation(self.terrain[i], [1.0, 0, h - 0.5], [0, 0, 0, 1])
-        else:
-            if level not in world.ramp_shapes:   # a wedge rising from x=0.5 to 2.0, then a vertical drop
-                w = cfg.terrain_width / 2
-                v = [[0.5, -w, 0], [2.0, -w, 0], [2.0, -w, h], [0.5, w, 0], [2.0, w, 0], [2.0, w, h]]
-                tri = [0, 1, 2, 3, 5, 4, 0, 3, 4, 0, 4, 1, 1, 4, 5, 1, 5, 2, 0, 2, 5, 0, 5, 3]
-                world.ramp_shapes[level] = (p.createCollisionShape(p.GEOM_MESH, vertices=v),
-                                            p.createVisualShape(p.GEOM_MESH, vertices=v, indices=tri,
-                                                                rgbaColor=[0.6, 0.45, 0.3, 1]))
-            if self.terrain[i] >= 0:
-                p.removeBody(self.terrain[i])
-            self.terrain[i] = p.createMultiBody(0, *world.ramp_shapes[level], basePosition=[0, 0, 0])
-            p.changeDynamics(self.terrain[i], -1, lateralFriction=cfg.friction_ramp)
-            p.setCollisionFilterGroupMask(self.terrain[i], -1, self._lane_bit(i), self._lane_bit(i))
-        self._terrain_level[i] = level
-
-    def _load_robot(self, i, design):
-        """(Re)load lane i's robot when its design changed, else reset its pose; zero the servo state."""
-        cfg, p = self.cfg, self._world[i].p
-        hip, knee = math.radians(cfg.start_hip_deg), math.radians(cfg.start_knee_deg)
-        if self._body_design[i] is None or not np.array_equal(self._body_design[i], design):
-            if self.bodies[i] >= 0:
-                p.removeBody(self.bodies[i])
-            path = os.path.join(self._tmp.name, f"lane{i}.urdf")
-            with open(path, "w") as f:
-                f.write(robot_urdf(design, cfg))
-            b = p.loadURDF(path, [0, 0, cfg.start_z], flags=p.URDF_USE_INERTIA_FROM_FILE)
-            for link in range(-1, 5):
-                p.changeDynamics(b, link, lateralFriction=cfg.friction_robot, linearDamping=0.0, angularDamping=0.0,
-                                 jointDamping=0.0)
-                p.setCollisionFilterGroupMask(b, link, self._lane_bit(i), 1 | self._lane_bit(i))
-            p.setJointMotorControlArray(b, JOINTS, p.VELOCITY_CONTROL, forces=[0.0] * 5)
-            self.bodies[i], self._body_design[i] = b, design.copy()
-        self._mass[i] = mass_properties(design, cfg)["total"]
-        self._gcr[i], self._spcf[i] = float(design[2]), float(design[3])
-        self._toe_len[i] = design[1] + cfg.foot_offset + cfg.foot_radius
-        b = self.bodies[i]
-        p.resetBasePositionAndOrientation(b, [0, 0, cfg.start_z], [0, 0, 0, 1])
-        p.resetBaseVelocity(b, [0, 0, 0], [0, 0, 0])
-        for j, q in ((NECK, 0.0), (HIP_L, hip), (HIP_R, hip), (KNEE_L, knee), (KNEE_R, knee)):
-            p.resetJointState(b, j, q, 0.0)
-        # The servo starts where the knee is, so the first step has no jerk. [ours]
-        m0 = knee * 180.0 / 100.0
-        self._servo[i], self._servo_goal[i] = [m0, m0], [m0, m0]
-        self.last_action[i] = m0 / math.pi
-
-    def _reset_lane(self, i):
-        if self.design_sampler is not None and self._held[i] % self.cfg.design_hold == 0:
-            d = np.asarray(self.design_sampler(self.rngs[i], 1), dtype=float).reshape(4)
-            self.designs[i] = check_design(d, what="design_sampler output")[0]
-        self._held[i] += 1
-        self._set_terrain(i, int(self.levels[i]))
-        self._load_robot(i, self.designs[i])
-        self.t[i] = 0
-        self.ep_return[i] = 0.0
-        self.tg_phase[i] = 0.0
-        self._ep_actions[i] = []
-
-    def set_design_sampler(self, sampler):
-        self.design_sampler = sampler
-
+    # -- reset: terrain, robot and design of each lane -----------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None):
         """Reset all lanes. options: 'designs' (N,4) or (4,), 'levels' (N,) or int, 'design_sampler'."""
         options = options or {}
@@ -981,7 +1024,150 @@ class BalluEnv:
         self._ready, self._stepping = True, self.worlds
         return self.observe(), {"levels": self.levels.copy(), "designs": self.designs.copy()}
 
-    # -- the hot loop ------------------------------------------------------------------------------------
+    def _reset_lane(self, i):
+        if self.design_sampler is not None and self._held[i] % self.cfg.design_hold == 0:
+            d = np.asarray(self.design_sampler(self.rngs[i], 1), dtype=float).reshape(4)
+            self.designs[i] = check_design(d, what="design_sampler output")[0]
+        self._held[i] += 1
+        self._set_terrain(i, int(self.levels[i]))
+        self._load_robot(i, self.designs[i])
+        self.t[i] = 0
+        self.ep_return[i] = 0.0
+        self.tg_phase[i] = 0.0
+        self._ep_actions[i] = []
+
+    def set_design_sampler(self, sampler):
+        self.design_sampler = sampler
+
+    def _set_terrain(self, i, level):
+        if self._terrain_level[i] != level:
+            self.terrain[i] = self._world[i].place_terrain(self.terrain[i], level, self._lane_bit(i))
+            self._terrain_level[i] = level
+
+    def _load_robot(self, i, design):
+        """(Re)load lane i's robot when its design changed, else reset its pose; the servo starts where the knee
+        is, so the first step has no jerk. [ours]"""
+        world = self._world[i]
+        if self._body_design[i] is None or not np.array_equal(self._body_design[i], design):
+            path = os.path.join(self._tmp.name, f"lane{i}.urdf")
+            with open(path, "w") as f:
+                f.write(robot_urdf(design, self.cfg))
+            self.bodies[i] = world.load_robot(self.bodies[i], path, self._lane_bit(i))
+            self._body_design[i] = design.copy()
+        self._mass[i] = mass_properties(design, self.cfg)["total"]
+        self._gcr[i], self._spcf[i] = float(design[2]), float(design[3])
+        self._toe_len[i] = design[1] + self.cfg.foot_offset + self.cfg.foot_radius
+        world.reset_robot(self.bodies[i])
+        m0 = math.radians(self.cfg.start_knee_deg) * 180.0 / 100.0
+        self._servo[i], self._servo_goal[i] = [m0, m0], [m0, m0]
+        self.last_action[i] = m0 / math.pi
+
+    # -- step: commands, rewards, episode ends and the curriculum ------------------------------------------
+    def step(self, actions):
+        if not self._ready:
+            raise RuntimeError("call reset() before step()")
+        a = check_actions(actions, self.num_envs, self.act_dim)
+        for i, row in enumerate(a.tolist()):
+            self._ep_actions[i].append(row)
+        self._command(a, np.arange(self.num_envs))
+        for _ in range(self.cfg.decimation):
+            self._physics_step()
+        self.t += 1
+        state = self.read_lanes()
+        pos, vel = state.pos, state.vel
+        cfg, task = self.cfg, self.cfg.task
+        warm = self._warmup()
+        rew = reward(task, cfg, state, self.levels, self.designs[:, 1], 1.0 if warm is None else warm[1])
+        finite = np.isfinite(pos).all(1) & np.isfinite(vel).all(1) & np.isfinite(rew)
+        blowup = ~finite | (np.linalg.norm(np.nan_to_num(vel[:, :3], nan=1e9), axis=1) > cfg.max_speed) \
+            | (np.nan_to_num(pos[:, 2], nan=1e9) > cfg.max_z)
+        rew = np.where(finite, rew, 0.0)
+        self.ep_return += rew
+        terminated = blowup
+        truncated = (self.t >= cfg.episode_steps) & ~terminated
+        obs = self.observe(state)
+        done = terminated | truncated
+        # info always holds every key (rows of unfinished lanes masked by "_final_obs"), so worker
+        # processes' infos concatenate without special cases.
+        info = {"final_obs": np.where(done[:, None], obs, 0.0).astype(np.float32), "_final_obs": done,
+                "final_x": np.where(done, pos[:, 0], np.nan),
+                "episode_return": np.where(done, self.ep_return, np.nan),
+                "episode_level": self.levels.copy(), "blowup": blowup}
+        if done.any():
+            if self.curriculum and (warm is None or not warm[0]):   # a blown-up episode does not move the level
+                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]), self.level_step)
+                self.levels = np.where(truncated, moved, self.levels)
+            for i in np.flatnonzero(done):
+                if blowup[i]:
+                    self._body_design[i] = None   # reload a blown-up robot from scratch
+                self._reset_lane(i)
+            fresh = self.observe()
+            obs[done] = fresh[done]
+        info["levels"] = self.levels.copy()      # the level each lane plays next
+        return obs, rew.astype(np.float32), terminated, truncated, info
+
+    def _command(self, a, lanes):
+        """Actions `a` of `lanes` (an index array) -> their servo goals and last actions, through the trajectory
+        generator and the action filter if set."""
+        if self.cfg.tg:
+            a, self.tg_phase[lanes] = tg_command(a, self.tg_phase[lanes], self.cfg)
+        if self.cfg.action_smoothing:   # the filtered command (see BalluConfig.action_smoothing)
+            b = self.cfg.action_smoothing
+            a = b * self.last_action[lanes] + (1.0 - b) * np.clip(a, 0.0, 1.0)
+        for i, goal in zip(lanes, servo_target(a).tolist()):
+            self._servo_goal[i] = goal
+        self.last_action[lanes] = a
+
+    def schedule(self, train_steps: int):
+        """The trainer's control steps so far (ppo.train tells it before each rollout): the warm-up
+        (cfg.warmup_steps) follows them. An env never told, as in `score`, has no warm-up."""
+        self.train_steps = int(train_steps)
+
+    def _warmup(self):
+        """While the warm-up runs: (hold the curriculum?, the scale of r_nav); None after it, or without one."""
+        W = self.cfg.warmup_steps
+        if not W or self.train_steps is None or self.train_steps >= 2 * W:
+            return None
+        return self.train_steps < W, min(1.0, max(0.0, (self.train_steps - W) / W))
+
+    # -- observe: what the robots' state is and what a policy sees -----------------------------------------
+    def read_lanes(self) -> LaneState:
+        """Every lane's state (LaneState) for observation, reward, limits and figures: four PyBullet calls per
+        robot, gathered in Python lists and turned into arrays once."""
+        base, vel, joints, legs = (pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
+                                   pybullet.getJointStates, pybullet.getLinkStates)
+        rows = []
+        for i, b in enumerate(self.bodies):
+            cid = self._world[i].cid
+            js = joints(b, JOINTS, physicsClientId=cid)
+            ll, lr = legs(b, TIBIAE, physicsClientId=cid)
+            rows.append((*base(b, physicsClientId=cid), *vel(b, physicsClientId=cid), [s[0] for s in js],
+                         [s[1] for s in js], (ll[4], lr[4]), (ll[5], lr[5])))
+        pos, orn, lin, ang, jq, jqd, knee, leg_orn = (np.array(c, dtype=float) for c in zip(*rows))
+        vel = np.concatenate([lin, ang], axis=1)
+        # foot tip = tibia frame origin (the knee) + R (0, 0, -L): the third column of R times -L
+        x, y, z, w = np.moveaxis(leg_orn, -1, 0)
+        axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+        toe = knee - self._toe_len[:, None, None] * axis
+        return LaneState(pos, vel, jq, jqd, toe, orn, knee, axis)
+
+    def observe(self, s: LaneState | None = None):
+        """The observation, its blocks in the order of cfg.obs (OBS_FORMS): [paper] base velocities in the base
+        frame (as Isaac Lab reports them), joint positions and velocities, last action, then the task cue and
+        the normalised design [facts]; or the authors' code's terms [facts]."""
+        s = self.read_lanes() if s is None else s
+        x0 = task_geometry(self.cfg.task)["x0"]
+        blocks = {"base_vel": lambda: [to_base_frame(s.orn, s.vel[:, :3]), to_base_frame(s.orn, s.vel[:, 3:])],
+                  "base_lin_vel": lambda: [to_base_frame(s.orn, s.vel[:, :3])],
+                  "joint_pos": lambda: [s.jq], "joint_vel": lambda: [s.jqd], "last_action": lambda: [self.last_action],
+                  "tg": lambda: [np.sin(2 * np.pi * self.tg_phase)[:, None],
+                                 np.cos(2 * np.pi * self.tg_phase)[:, None]],
+                  "cue": lambda: [np.stack([x0 - s.pos[:, 0], level_height(self.cfg.task, self.levels)], axis=1)],
+                  "pelvis_pos": lambda: [s.pos], "knee_to_edge": lambda: [x0 - s.knee[:, :, 0]],
+                  "design": lambda: [normalise_design(self.designs)]}
+        return np.concatenate([a for b in obs_blocks(self.cfg) for a in blocks[b]()], axis=1).astype(np.float32)
+
+    # -- physics: the hot loop -----------------------------------------------------------------------------
     def _physics_step(self):
         """One 200 Hz step: per robot, read joints and balloon, apply joint torques and balloon forces; step.
 
@@ -1035,169 +1221,20 @@ class BalluEnv:
         if self.monitor is not None:
             self.monitor(self)
 
-    def read_lanes(self) -> LaneState:
-        """Every lane's state (LaneState) for observation, reward, limits and figures: four PyBullet calls per
-        robot, gathered in Python lists and turned into arrays once."""
-        base, vel, joints, legs = (pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
-                                   pybullet.getJointStates, pybullet.getLinkStates)
-        rows = []
-        for i, b in enumerate(self.bodies):
-            cid = self._world[i].cid
-            js = joints(b, JOINTS, physicsClientId=cid)
-            ll, lr = legs(b, TIBIAE, physicsClientId=cid)
-            rows.append((*base(b, physicsClientId=cid), *vel(b, physicsClientId=cid), [s[0] for s in js],
-                         [s[1] for s in js], (ll[4], lr[4]), (ll[5], lr[5])))
-        pos, orn, lin, ang, jq, jqd, knee, leg_orn = (np.array(c, dtype=float) for c in zip(*rows))
-        vel = np.concatenate([lin, ang], axis=1)
-        # foot tip = tibia frame origin (the knee) + R (0, 0, -L): the third column of R times -L
-        x, y, z, w = np.moveaxis(leg_orn, -1, 0)
-        axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
-        toe = knee - self._toe_len[:, None, None] * axis
-        return LaneState(pos, vel, jq, jqd, toe, orn, knee, axis)
+    # -- worlds --------------------------------------------------------------------------------------------
+    def pause(self, lanes):
+        """Stop stepping the worlds whose every lane is paused (score pauses lanes whose result is known; their
+        robots stand still, their outputs are to be ignored). Other worlds are PyBullet clients of their own,
+        so their trajectories do not change."""
+        paused = set(int(i) for i in lanes)
+        self._stepping = [w for w in self.worlds if not set(w.lanes) <= paused]
 
-    def observe(self, s: LaneState | None = None):
-        """The observation, its blocks in the order of cfg.obs (OBS_FORMS): [paper] base velocities in the base
-        frame (as Isaac Lab reports them), joint positions and velocities, last action, then the task cue and
-        the normalised design [facts]; or the authors' code's terms [facts]."""
-        s = self.read_lanes() if s is None else s
-        x0 = task_geometry(self.cfg.task)["x0"]
-        blocks = {"base_vel": lambda: [to_base_frame(s.orn, s.vel[:, :3]), to_base_frame(s.orn, s.vel[:, 3:])],
-                  "base_lin_vel": lambda: [to_base_frame(s.orn, s.vel[:, :3])],
-                  "joint_pos": lambda: [s.jq], "joint_vel": lambda: [s.jqd], "last_action": lambda: [self.last_action],
-                  "tg": lambda: [np.sin(2 * np.pi * self.tg_phase)[:, None], np.cos(2 * np.pi * self.tg_phase)[:, None]],
-                  "cue": lambda: [np.stack([x0 - s.pos[:, 0], level_height(self.cfg.task, self.levels)], axis=1)],
-                  "pelvis_pos": lambda: [s.pos], "knee_to_edge": lambda: [x0 - s.knee[:, :, 0]],
-                  "design": lambda: [normalise_design(self.designs)]}
-        return np.concatenate([a for b in obs_blocks(self.cfg) for a in blocks[b]()], axis=1).astype(np.float32)
+    def client(self, i):
+        """The PyBullet client (BulletClient) of lane i's world, for tools that inspect a robot."""
+        return self._world[i].p
 
-    def _tg_command(self, a, lanes):
-        """The knee commands of the trajectory generator (cfg.tg) for actions (c_l, c_r, f, A) of `lanes`;
-        advances their phase."""
-        lo, hi = self.cfg.tg_freq
-        phase = (self.tg_phase[lanes] + (lo + (hi - lo) * np.clip(a[:, 2], 0, 1)) * self.cfg.control_dt) % 1.0
-        self.tg_phase[lanes] = phase
-        swing = 0.5 * np.clip(a[:, 3], 0, 1) * np.sin(2 * np.pi * phase)
-        return np.clip(a[:, :2] + swing[:, None], 0.0, 1.0)
-
-    def _command(self, a, lanes):
-        """Actions `a` of `lanes` (an index array) -> their servo goals and last actions, through the trajectory
-        generator and the action filter if set."""
-        if self.cfg.tg:
-            a = self._tg_command(a, lanes)
-        if self.cfg.action_smoothing:   # the filtered command (see BalluConfig.action_smoothing)
-            b = self.cfg.action_smoothing
-            a = b * self.last_action[lanes] + (1.0 - b) * np.clip(a, 0.0, 1.0)
-        for i, goal in zip(lanes, servo_target(a).tolist()):
-            self._servo_goal[i] = goal
-        self.last_action[lanes] = a
-
-    def schedule(self, train_steps: int):
-        """The trainer's control steps so far (ppo.train tells it before each rollout): the warm-up
-        (cfg.warmup_steps) follows them. An env never told, as in `score`, has no warm-up."""
-        self.train_steps = int(train_steps)
-
-    def _warmup(self):
-        """While the warm-up runs: (hold the curriculum?, the scale of r_nav); None after it, or without one."""
-        W = self.cfg.warmup_steps
-        if not W or self.train_steps is None or self.train_steps >= 2 * W:
-            return None
-        return self.train_steps < W, min(1.0, max(0.0, (self.train_steps - W) / W))
-
-    def step(self, actions):
-        if not self._ready:
-            raise RuntimeError("call reset() before step()")
-        a = check_actions(actions, self.num_envs, self.act_dim)
-        for i, row in enumerate(a.tolist()):
-            self._ep_actions[i].append(row)
-        self._command(a, np.arange(self.num_envs))
-        for _ in range(self.cfg.decimation):
-            self._physics_step()
-        self.t += 1
-        state = self.read_lanes()
-        pos, vel = state.pos, state.vel
-        cfg, task = self.cfg, self.cfg.task
-        warm = self._warmup()
-        rew = reward(task, cfg, state, self.levels, self.designs[:, 1], 1.0 if warm is None else warm[1])
-        finite = np.isfinite(pos).all(1) & np.isfinite(vel).all(1) & np.isfinite(rew)
-        blowup = ~finite | (np.linalg.norm(np.nan_to_num(vel[:, :3], nan=1e9), axis=1) > cfg.max_speed) \
-            | (np.nan_to_num(pos[:, 2], nan=1e9) > cfg.max_z)
-        rew = np.where(finite, rew, 0.0)
-        self.ep_return += rew
-        terminated = blowup
-        truncated = (self.t >= cfg.episode_steps) & ~terminated
-        obs = self.observe(state)
-        done = terminated | truncated
-        # info always holds every key (rows of unfinished lanes masked by "_final_obs"), so worker
-        # processes' infos concatenate without special cases.
-        info = {"final_obs": np.where(done[:, None], obs, 0.0).astype(np.float32), "_final_obs": done,
-                "final_x": np.where(done, pos[:, 0], np.nan),
-                "episode_return": np.where(done, self.ep_return, np.nan),
-                "episode_level": self.levels.copy(), "blowup": blowup}
-        if done.any():
-            if self.curriculum and (warm is None or not warm[0]):   # a blown-up episode does not move the level
-                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]), self.level_step)
-                self.levels = np.where(truncated, moved, self.levels)
-            for i in np.flatnonzero(done):
-                if blowup[i]:
-                    self._body_design[i] = None   # reload a blown-up robot from scratch
-                self._reset_lane(i)
-            fresh = self.observe()
-            obs[done] = fresh[done]
-        info["levels"] = self.levels.copy()      # the level each lane plays next
-        return obs, rew.astype(np.float32), terminated, truncated, info
-
-    # -- saving and restoring the lanes (ppo.train resumes a killed run exactly) --------------------------------
-    def get_state(self) -> list | None:
-        """What each lane needs to go on exactly from here, in plain types (a torch checkpoint loads them with
-        weights_only; the actions as float64 bytes): its design, level, clock, random stream and its episode's
-        actions so far. [ours] Not PyBullet's own state: saveState/restoreState does not restore contacts
-        exactly (restored onto the very world it was saved from, a run diverged within 1-2 control steps at 2 of
-        3 save points, docs/ppo_protocol "Resumed runs"). An episode depends on nothing before its start (the
-        robot is dropped from start_z, so no contact survives a reset), so set_state replays the episode (test:
-        bit for bit). None where lanes share worlds (lanes_per_world > 1: a world-mate's replay would move them)."""
-        if self.cfg.lanes_per_world != 1:
-            return None
-        return [{"id": int(self.lane_ids[i]), "design": self.designs[i].tolist(), "level": int(self.levels[i]),
-                 "t": int(self.t[i]), "ep_return": float(self.ep_return[i]), "held": int(self._held[i]),
-                 "rng": self.rngs[i].bit_generator.state,
-                 "actions": np.asarray(self._ep_actions[i], dtype=np.float64).tobytes()}
-                for i in range(self.num_envs)]
-
-    def set_state(self, lanes: list):
-        """Go on from get_state()'s output: each lane's robot is put at its episode's start and its actions
-        replayed. The env must hold the same lane ids, one per world (ValueError otherwise)."""
-        ids = [int(k) for k in self.lane_ids]
-        if [lane["id"] for lane in lanes] != ids or self.cfg.lanes_per_world != 1:
-            raise ValueError(f"saved lanes {[lane['id'] for lane in lanes]} do not match this env's lanes {ids} "
-                             f"(lanes_per_world={self.cfg.lanes_per_world}, must be 1)")
-        for i, lane in enumerate(lanes):
-            self.designs[i], self.levels[i] = lane["design"], lane["level"]
-            self._set_terrain(i, lane["level"])
-            self._load_robot(i, self.designs[i])
-            self.tg_phase[i] = 0.0
-        actions = [np.frombuffer(lane["actions"], dtype=np.float64).reshape(-1, self.act_dim).tolist()
-                   for lane in lanes]
-        self._replay(actions)
-        for i, lane in enumerate(lanes):
-            self.t[i], self.ep_return[i], self._held[i] = lane["t"], lane["ep_return"], lane["held"]
-            self.rngs[i] = np.random.default_rng(0)
-            self.rngs[i].bit_generator.state = lane["rng"]
-            self._ep_actions[i] = actions[i]
-        self._ready = True
-
-    def _replay(self, actions: list):
-        """Step lane i through actions[i] from its episode's start, the lanes in lock-step aligned at their ends:
-        a lane's world steps only over its own actions. The benchmark's counters are left as they were."""
-        counters = self.sim_seconds, self.world_steps, self.fine_steps
-        T = max(map(len, actions), default=0)
-        for k in range(T):
-            lanes = np.array([i for i, acts in enumerate(actions) if k >= T - len(acts)])
-            self._command(np.array([actions[i][k - T + len(actions[i])] for i in lanes], dtype=float), lanes)
-            self._stepping = [self._world[i] for i in lanes]
-            for _ in range(self.cfg.decimation):
-                self._physics_step()
-        self._stepping = self.worlds
-        self.sim_seconds, self.world_steps, self.fine_steps = counters
+    def _lane_bit(self, i):
+        return 1 << (1 + i % self.cfg.lanes_per_world)
 
     def close(self):
         for world in getattr(self, "worlds", []):
@@ -1205,6 +1242,7 @@ class BalluEnv:
         if getattr(self, "worlds", None):
             self.worlds = []
             self._tmp.cleanup()
+
 
 
 # ----------------------------------------------------------------------------------------------------------

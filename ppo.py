@@ -325,25 +325,38 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
 CKPT_VERSION = 1
 # torch pickles an empty bytes (a lane's actions at the very start of its episode, ballu's BalluEnv.get_state) as
 # a call of bytes(), which torch.load(weights_only=True) refuses by default: a checkpoint taken just as every
-# lane's episode began read as damaged and its training started over (an overnight run, 2026-11-28). bytes()
-# builds only bytes. Process-wide, once: torch's safe_globals() context is not thread-safe (run_all's threads).
+# lane's episode began would read as damaged and its training start over. bytes() builds only bytes.
+# Process-wide, once: torch's safe_globals() context is not thread-safe (run_all's threads).
 torch.serialization.add_safe_globals([bytes])
 
 
-def save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr, levels, rng, extra=None, ret_norm=None,
-                    run=None, obs_names=None):
-    """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint. `ret_norm`: the
-    return statistics of cfg.reward_norm (absent from older checkpoints: they start afresh). `run`: what an
-    unfinished run needs to go on exactly (see train); a finished run's checkpoint holds none. `obs_names`: the
-    env's names of the observation entries, if it has them (a policy must not run on another observation)."""
-    state = {"version": CKPT_VERSION, "kind": kind, "obs_dim": int(norm.mean.shape[0]),
-             "act_dim": int(policy.log_std.shape[0]), "cfg": {k: list(v) if isinstance(v, tuple) else v
-                                                              for k, v in asdict(cfg).items()},
-             "policy": policy.state_dict(), "optimizer": opt.state_dict(), "norm": norm.state(),
-             "steps": int(steps), "lr": float(lr), "levels": torch.as_tensor(np.asarray(levels)),
-             "rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "extra": extra or {}}
-    if ret_norm is not None:
-        state["ret_norm"] = ret_norm.state()
+@dataclass
+class TrainState:
+    """What a run carries from update to update; a checkpoint holds all of it (save_checkpoint)."""
+    policy: nn.Module
+    norm: RunningNorm
+    opt: torch.optim.Optimizer
+    rng: np.random.Generator
+    lr: float
+    steps: int                         # control steps since the run's first update ever
+    levels: np.ndarray                 # each lane's curriculum level
+    ret_norm: RunningNorm              # the return statistics of cfg.reward_norm
+    best: dict                         # the best policy's record (next_best)
+    own: dict | None = None            # the checkpoint's whole state when the run resumes its own checkpoint
+
+
+def save_checkpoint(path, st: TrainState, kind, cfg, run=None, obs_names=None):
+    """Atomic write (tmp + replace): a run killed while saving keeps its previous checkpoint. `run`: what an
+    unfinished run needs to go on exactly (see checkpoint); a finished run's checkpoint holds none.
+    `obs_names`: the env's names of the observation entries, if it has them (a policy must not run on another
+    observation)."""
+    state = {"version": CKPT_VERSION, "kind": kind, "obs_dim": int(st.norm.mean.shape[0]),
+             "act_dim": int(st.policy.log_std.shape[0]), "cfg": {k: list(v) if isinstance(v, tuple) else v
+                                                                 for k, v in asdict(cfg).items()},
+             "policy": st.policy.state_dict(), "optimizer": st.opt.state_dict(), "norm": st.norm.state(),
+             "steps": int(st.steps), "lr": float(st.lr), "levels": torch.as_tensor(np.asarray(st.levels)),
+             "rng": st.rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "extra": {"best": st.best},
+             "ret_norm": st.ret_norm.state()}
     if run is not None:
         state["run"] = run
     if obs_names is not None:
@@ -485,10 +498,12 @@ def flatten_batch(buf, adv, ret, std) -> dict:
     return batch
 
 
-def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
-    """Where a run starts: resumed from `ckpt` if it exists (random streams included), else warm-started from
-    `init_ckpt`, else fresh from `seed`. Returns (policy, norm, opt, rng, lr, steps, levels, ret_norm, own):
-    `own` is the checkpoint's whole state when the run resumes from `ckpt`, else None."""
+def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level) -> TrainState:
+    """Where a run starts: resumed from `ckpt` if it exists (random streams included: `own`), else warm-started
+    from `init_ckpt` (policy, optimiser, normaliser, curriculum levels and the step count: a GES round), else
+    fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
+    [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
+    A checkpoint of another policy kind, size or observation is a clear error."""
     resume = ckpt if os.path.exists(ckpt) else init_ckpt
     state = load_checkpoint(resume) if resume else None
     names = list(getattr(env, "obs_names", None) or []) or None
@@ -506,23 +521,60 @@ def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level):
         policy, norm = policy_from(state)
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
     rng = np.random.default_rng([seed, 1])
-    ret_norm = RunningNorm(1)
     if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
         levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
     else:
         levels = np.full(env.num_envs, start_level)
+    st = TrainState(policy, norm, opt, rng, cfg.lr, 0, levels, RunningNorm(1), dict(NO_BEST))
     if state is None:
-        return policy, norm, opt, rng, cfg.lr, 0, levels, ret_norm, None
+        return st
     opt.load_state_dict(state["optimizer"])
     if "ret_norm" in state:
-        ret_norm.load(state["ret_norm"])
+        st.ret_norm.load(state["ret_norm"])
     if len(state["levels"]):
-        levels = np.resize(state["levels"].numpy(), env.num_envs)
-    own = state if resume == ckpt else None
-    if own:   # resuming this very run: continue its random streams too
+        st.levels = np.resize(state["levels"].numpy(), env.num_envs)
+    st.lr, st.steps = state["lr"], state["steps"]
+    if resume == ckpt:   # resuming this very run: continue its random streams too
+        st.own, st.best = state, state["extra"].get("best", NO_BEST)
         rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
-    return policy, norm, opt, rng, state["lr"], state["steps"], levels, ret_norm, own   # steps: from the first update ever
+    return st
+
+
+def start_episodes(env, st: TrainState, design_sampler, progress):
+    """The run's first observations, the running discounted returns of cfg.reward_norm and the last 100 episode
+    returns: where the run's own checkpoint left them (resume_env), else fresh episodes."""
+    acc, ep_returns = np.zeros(env.num_envs, dtype=np.float32), deque(maxlen=100)
+    obs = resume_env(env, st.own, design_sampler, progress)
+    if obs is not None:
+        acc[:] = st.own["run"]["acc"].numpy()
+        ep_returns.extend(st.own["run"]["ep_returns"])
+        return obs, acc, ep_returns
+    obs, _ = env.reset(seed=int(st.rng.integers(2 ** 31)), options={"design_sampler": design_sampler,
+                                                                      "levels": st.levels})
+    st.norm.update(obs)
+    return obs, acc, ep_returns
+
+
+def checkpoint(ckpt, st: TrainState, kind, cfg, env, level, obs, acc, ep_returns, finished: bool):
+    """Save the run to `ckpt` (every cfg.ckpt_every updates and at the end) and, if the mean training level
+    `level` of the updates since the last checkpoint beats the best so far (next_best), first to
+    best_path(ckpt) [facts: the authors keep the update with the highest mean level]. [ours] The mean over
+    ckpt_every updates, not one update's: 32 lanes' mean level moves by chance from update to update, and a
+    best taken only at checkpoints is rewritten bit for bit by a run resumed after a kill.
+    [ours] An unfinished run's checkpoint also holds the env's state (if the env has get_state: each lane's
+    design, level, clock, random stream and episode so far) and the last observations, so a run killed and rerun
+    goes on exactly as if never stopped; without it a resumed run is another run (docs/ppo_protocol "Resumed
+    runs"). A finished run's holds none: continuing it to more steps starts fresh episodes, as a warm start does."""
+    names = getattr(env, "obs_names", None)
+    new = next_best(st.best, level, st.steps)
+    if new is not None:   # the best first: a kill in between redoes both
+        st.best = new
+        save_checkpoint(best_path(ckpt), st, kind, cfg, obs_names=names)
+    lanes = env.get_state() if not finished and hasattr(env, "get_state") else None
+    run = None if lanes is None else {"env": lanes, "obs": torch.from_numpy(obs.copy()),
+                                      "acc": torch.from_numpy(acc.copy()), "ep_returns": list(ep_returns)}
+    save_checkpoint(ckpt, st, kind, cfg, run, names)
 
 
 class TrainLog:
@@ -565,84 +617,49 @@ class TrainLog:
 def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
           init_ckpt: str | None = None, seed: int = 0, start_level: int | tuple = 0, log_csv: str | None = None,
           progress=print) -> dict:
-    """Train a `kind` ('mlp' | 'moe') policy with PPO until `total_steps` control steps (cumulative).
+    """Train a `kind` ('mlp' | 'moe') policy with PPO until `total_steps` control steps, counted from the run's
+    first update ever (a warm start carries its steps, so a GES round trains total_steps minus them).
 
     `design_sampler(rng, n) -> (n, 4)` draws the designs of resetting lanes (uniform over a design space for
-    the e2e baselines, a GES territory for a specialist). If `ckpt` exists the run resumes from it; else,
-    if `init_ckpt` is given, policy, optimiser, normaliser, curriculum levels and the step count are
-    warm-started from it (GES rounds: total_steps = (round + 1) x steps per round); else the policy starts
-    fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
-    [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
-    Checkpoints go to `ckpt` every `cfg.ckpt_every` updates and at the end. [ours] While the run is
-    unfinished they also hold the env's state (if the env has get_state: each lane's design, level, clock,
-    random stream and episode so far) and the last observations, so a run killed and rerun goes on exactly as
-    if never stopped; without it a resumed run is another run (docs/ppo_protocol "Resumed runs": J moved by
-    5 cm). A finished run's checkpoint holds none: continuing it to more steps starts fresh episodes, as a
-    warm start does (the protocol's milestones, as committed). At each checkpoint, if the mean
-    training level over the updates since the last one beats every earlier checkpoint's, the same state also
-    goes to best_path(ckpt) [facts: the authors keep the update with the highest mean level; [ours] not before
-    the level's lowest window while no window has beaten the first: `next_best`]. [ours] The mean
-    over `ckpt_every` updates, not one update's: 32 lanes' mean level moves by chance from update to update,
-    and a best taken only at checkpoints is rewritten bit for bit by a run resumed after a kill.
-    Returns a summary of the last iteration and the best one, and whether the run resumed from `ckpt`.
-    """
-    if env.num_envs < 1:
-        raise ValueError(f"env.num_envs={env.num_envs!r} must be >= 1")
-    if total_steps < 1:
-        raise ValueError(f"total_steps={total_steps!r} must be >= 1")
+    the e2e baselines, a GES territory for a specialist). Where the run starts: start_run (resume, warm start,
+    fresh). Each update: rollout -> GAE -> PPO update -> log, and every cfg.ckpt_every updates a checkpoint
+    (checkpoint: the run, and the best policy by training level). Returns a summary of the last update and the
+    best one, and whether the run resumed from `ckpt`."""
+    if env.num_envs < 1 or total_steps < 1:
+        raise ValueError(f"env.num_envs={env.num_envs!r} and total_steps={total_steps!r} must be >= 1")
     torch.set_num_threads(1)   # the env workers own the cores; the update is small
     resumed = os.path.exists(ckpt)
-    policy, norm, opt, rng, lr, steps, levels, ret_norm, own = start_run(kind, env, ckpt, init_ckpt, cfg, seed,
-                                                                         start_level)
-    if steps >= total_steps:
-        return {"steps": steps, "resumed": True}
-    best = own["extra"].get("best", NO_BEST) if own else NO_BEST
-    T, N = cfg.num_steps, env.num_envs
-    it, ep_returns, acc, window = 0, deque(maxlen=100), np.zeros(N, dtype=np.float32), []
-    obs = resume_env(env, own, design_sampler, progress)
-    if obs is not None:   # the run goes on where it was checkpointed
-        acc[:] = own["run"]["acc"].numpy()
-        ep_returns.extend(own["run"]["ep_returns"])
-    else:
-        obs, _ = env.reset(seed=int(rng.integers(2 ** 31)),
-                           options={"design_sampler": design_sampler, "levels": levels})
-        norm.update(obs)
+    st = start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level)
+    if st.steps >= total_steps:
+        return {"steps": st.steps, "resumed": True}
+    obs, acc, ep_returns = start_episodes(env, st, design_sampler, progress)
+    T, N, window = cfg.num_steps, env.num_envs, []
     with TrainLog(log_csv, progress, kind, total_steps) as log:
-        while steps < total_steps:
+        while st.steps < total_steps:
             t0 = time.time()
             if hasattr(env, "schedule"):   # an env whose schedule follows training's progress (a warm-up)
-                env.schedule(steps)
-            buf, obs, info, finished = rollout(kind, policy, norm, env, obs, T, cfg, int(rng.integers(2 ** 31)))
+                env.schedule(st.steps)
+            noise_seed = int(st.rng.integers(2 ** 31))
+            buf, obs, info, finished = rollout(kind, st.policy, st.norm, env, obs, T, cfg, noise_seed)
             with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
-                last_value = policy.value(torch.from_numpy(norm(obs))).numpy()
-            rew = scale_rewards(buf, acc, ret_norm, cfg)
+                last_value = st.policy.value(torch.from_numpy(st.norm(obs))).numpy()
+            rew = scale_rewards(buf, acc, st.ret_norm, cfg)
             adv, ret = gae(rew, buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
-            std = policy.log_std.exp().detach()
-            batch = flatten_batch(buf, adv, ret, std)
-            t_roll = time.time() - t0
-            lr, st = ppo_update(policy, opt, batch, cfg, lr, rng)
-            steps, it = steps + T * N, it + 1
+            std = st.policy.log_std.exp().detach()
+            batch, t_roll = flatten_batch(buf, adv, ret, std), time.time() - t0
+            st.lr, stats = ppo_update(st.policy, st.opt, batch, cfg, st.lr, st.rng)
+            st.steps, st.levels = st.steps + T * N, np.asarray(info["levels"])
             ep_returns.extend(finished)
-            levels = np.asarray(info["levels"])
-            window.append(float(levels.mean()))
+            window.append(float(st.levels.mean()))
             ep_ret = float(np.mean(ep_returns)) if ep_returns else float("nan")   # of the last 100 episodes
-            log.write(steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, window[-1], st, lr,
+            log.write(st.steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, window[-1], stats, st.lr,
                       float(std.mean()))
-            if it % cfg.ckpt_every == 0 or steps >= total_steps:
-                save = lambda path, extra, run=None: save_checkpoint(path, policy, opt, norm, kind, cfg, steps, lr,
-                                                                     levels, rng, extra, ret_norm, run,
-                                                                     getattr(env, "obs_names", None))
-                new = next_best(best, float(np.mean(window)), steps)
-                if new is not None:   # the best first: a kill in between redoes both
-                    best = new
-                    save(best_path(ckpt), {"best": best})
-                lanes = env.get_state() if steps < total_steps and hasattr(env, "get_state") else None
-                run = None if lanes is None else {"env": lanes, "obs": torch.from_numpy(obs.copy()),
-                                                  "acc": torch.from_numpy(acc.copy()), "ep_returns": list(ep_returns)}
-                save(ckpt, {"best": best}, run)
+            if len(window) == cfg.ckpt_every or st.steps >= total_steps:
+                checkpoint(ckpt, st, kind, cfg, env, float(np.mean(window)), obs, acc, ep_returns,
+                           st.steps >= total_steps)
                 window.clear()
-    return {"steps": steps, "mean_level": float(levels.mean()), "episode_return": ep_ret,
-            "wall_s": time.time() - log.t_start, "best_level": best["level"], "best_steps": best["steps"],
+    return {"steps": st.steps, "mean_level": float(st.levels.mean()), "episode_return": ep_ret,
+            "wall_s": time.time() - log.t_start, "best_level": st.best["level"], "best_steps": st.best["steps"],
             "resumed": resumed}
 
 
@@ -653,9 +670,8 @@ def next_best(best: dict, level: float, steps: int) -> dict | None:
     """The best-policy record after a checkpoint whose window has mean training level `level`; None if the best
     stays. [facts] The highest window wins. [ours] Until a window beats the run's first one, a new lowest window
     takes the best instead: lanes that start spread up to the score's level (Preset.ppo_start "task") give the
-    untrained first windows a high level that the curriculum then pulls down, and the plain rule kept that
-    untrained policy (quick preset, ramp, 380k steps: 7 of 10 score sets were 14.97 deg, failing at once;
-    docs/ppo_protocol "The best policy"). The same holds for a warm start (a GES round), whose lanes carry
+    untrained first windows a high level that the curriculum then pulls down, and the plain rule keeps that
+    untrained policy (docs/ppo_protocol "The best policy"). The same holds for a warm start (a GES round), whose lanes carry
     levels earned on other designs. A run whose level ever beats its first window keeps the plain rule's best
     exactly; a record without "first" (an older checkpoint's) keeps the plain rule."""
     if best["level"] == -math.inf:   # the run's first window

@@ -65,7 +65,7 @@ def episode(policy, design, level: int, cfg: ballu.BalluConfig) -> dict:
 
 def diagnose(policy_path: str, design, levels) -> list:
     policy = ppo.load_policy(policy_path)
-    cfg = ballu.BalluConfig(task="obstacle")
+    cfg = ballu.obs_config(policy.obs_names, "obstacle")   # the observation it trained with
     return [episode(policy, design, int(lv), cfg) for lv in levels]
 
 
@@ -108,8 +108,9 @@ def main(argv=None):
     passed = [i for i, r in enumerate(rows) if r["verdict"] == "pass"]
     fail = next((r for r in rows[passed[0]:] if r["verdict"] != "pass"), None) if passed else rows[0]
     if args.strip and fail:
-        print("wrote", ballu.motion_strip(args.strip, ppo.load_policy(args.policy), "obstacle", fail["level"],
-                                          design, frames=10))
+        policy = ppo.load_policy(args.policy)
+        print("wrote", ballu.motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10,
+                                          cfg=ballu.obs_config(policy.obs_names, "obstacle")))
 
 
 if __name__ == "__main__":
