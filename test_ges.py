@@ -568,6 +568,8 @@ def test_ballu_code_observation_reads_the_pelvis_and_each_knees_distance_to_the_
     assert ballu.obs_names(BalluConfig(obs="code_vel"))[:6] == ("vx", "vy", "vz", "wx", "wy", "wz")
     ramp = ballu.obs_names(BalluConfig(task="ramp", obs="code"))
     assert "vx" in ramp and "wx" not in ramp and "knee_l_to_edge" not in ramp
+    assert ballu.obs_config(ballu.obs_names(BalluConfig(obs="code_vel", tg=True)), "obstacle") \
+        == BalluConfig(obs="code_vel", tg=True) and ballu.obs_config(None).obs == "paper"
 
 
 def _lanes(knees, axis=(0.0, 0.0, 1.0), pos=(0.0, 0.0, 1.0), vx=0.0):
@@ -1059,7 +1061,7 @@ def test_ppo_reward_norm_solves_the_point_mass_and_resumes_its_statistics(tmp_pa
     state = ppo.load_checkpoint(ck)
     assert learned > -6 and state["ret_norm"]["count"] > 30_000, (learned, state["ret_norm"])
     start = ppo.start_run("mlp", PointMass(16), ck, None, cfg, 0, 0)
-    assert float(start[7].var[0]) == float(state["ret_norm"]["var"][0]) > 1.5
+    assert float(start.ret_norm.var[0]) == float(state["ret_norm"]["var"][0]) > 1.5
 
 
 @pytest.mark.parametrize("kind", ["mlp", "moe"])
