@@ -238,21 +238,21 @@ def test_ballu_same_seed_same_trajectory_and_workers_do_not_matter():
 @pytest.mark.parametrize("extra", [{}, {"tg": True, "random_first_episode": True}])
 def test_ballu_get_state_then_set_state_in_a_fresh_env_goes_on_bit_for_bit(extra):
     """A state saved mid-episode (after auto-resets with new designs) and set into a fresh env, in one process
-    or split over 2 workers, or back into the env it came from, gives the saved env's next 60 steps bit for
+    or split over 2 workers, or back into the env it came from, gives the saved env's next 40 steps bit for
     bit (set_state replays each lane's episode so far); an env of other lanes refuses it by name."""
     cfg = replace(BalluConfig(task="obstacle"), episode_steps=40, **extra)
-    acts = np.random.default_rng(3).uniform(0, 1, (160, 4, ballu.dims(cfg)[1]))
+    acts = np.random.default_rng(3).uniform(0, 1, (130, 4, ballu.dims(cfg)[1]))
     env = BalluEnv(4, cfg, design_sampler=d2_sampler)
     env.reset(seed=5, options={"levels": 3})
-    for a in acts[:100]:
+    for a in acts[:90]:
         env.step(a)
     saved = env.get_state()
-    ref = [env.step(a) for a in acts[100:]]
+    ref = [env.step(a) for a in acts[90:]]
     for fresh in (BalluEnv(4, cfg, design_sampler=d2_sampler), ballu.VecBallu(4, 2, cfg, design_sampler=d2_sampler),
                   env):
         try:
             fresh.set_state(saved)
-            for (o, r, te, tr, info), a in zip(ref, acts[100:]):
+            for (o, r, te, tr, info), a in zip(ref, acts[90:]):
                 o2, r2, te2, tr2, info2 = fresh.step(a)
                 for x, y in ((o, o2), (r, r2), (te, te2), (tr, tr2), (info["levels"], info2["levels"])):
                     np.testing.assert_array_equal(x, y)
@@ -1209,7 +1209,7 @@ def test_ppo_vecballu_rollout_in_workers_equals_one_process():
 def test_ballu_score_in_workers_equals_score_in_one_process():
     """ballu.score in the shared worker pool (each worker plays its designs with its own policy copy) gives
     exactly the scores of one process, for a per-lane scripted gait and a learned policy; the pool is reused."""
-    cfg = replace(BalluConfig(), episode_steps=100)
+    cfg = replace(BalluConfig(), episode_steps=60)
     rng = np.random.default_rng(4)
     designs = np.column_stack([rng.uniform(0.3, 0.5, (6, 2)), rng.uniform(0.75, 0.9, 6), rng.uniform(0.001, 0.1, 6)])
     torch.manual_seed(3)
