@@ -976,8 +976,7 @@ class BalluEnv(_ExactResume):
         self.designs = np.tile(BASELINE, (n, 1))
         self.levels = np.zeros(n, dtype=np.int64)
         self.level_step = 1              # levels a finished episode moves (score sets one per lane to bisect)
-        self.bodies = [-1] * n
-        self.terrain = [-1] * n
+        self.bodies, self.terrain = [-1] * n, [-1] * n   # each lane's robot and terrain body in its world
         self._terrain_level = np.full(n, -1)
         self._body_design = [None] * n
         # per-lane state of the hot loop as plain Python floats (see _physics_step)
@@ -989,13 +988,11 @@ class BalluEnv(_ExactResume):
         self._toe_len = np.zeros(n)      # knee to the foot's tip (m)
         self.last_action = np.zeros((n, 2))
         self.tg_phase = np.zeros(n)      # cycles of the trajectory generator (cfg.tg)
-        self.t = np.zeros(n, dtype=np.int64)
-        self.ep_return = np.zeros(n)
+        self.t, self.ep_return = np.zeros(n, dtype=np.int64), np.zeros(n)   # each lane's clock and return
         self._held = np.zeros(n, dtype=np.int64)   # episodes a lane has begun on its sampled design
         self._ep_actions = [[] for _ in range(n)]   # each lane's actions in its episode so far (get_state)
         self.rngs = [np.random.default_rng(0) for _ in range(n)]
-        self._ready = False
-        self.sim_seconds = 0.0
+        self._ready, self.sim_seconds = False, 0.0   # sim_seconds: stepSimulation's own time (the benchmark)
         self.world_steps, self.fine_steps = 0, 0   # world physics steps, and those with fine substeps
         self.train_steps = None          # the trainer's steps so far, if it tells them (schedule)
         self._stepping = self.worlds     # worlds that stepSimulation steps (see pause)
