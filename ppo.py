@@ -498,6 +498,12 @@ def flatten_batch(buf, adv, ret, std) -> dict:
     return batch
 
 
+def obs_names_of(env):
+    """The names of the env's observation entries as a list (a checkpoint keeps them), None if it has none."""
+    names = getattr(env, "obs_names", None)
+    return list(names) if names else None
+
+
 def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level) -> TrainState:
     """Where a run starts: resumed from `ckpt` if it exists (random streams included: `own`), else warm-started
     from `init_ckpt` (policy, optimiser, normaliser, curriculum levels and the step count: a GES round), else
@@ -506,7 +512,7 @@ def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level) -> TrainState:
     A checkpoint of another policy kind, size or observation is a clear error."""
     resume = ckpt if os.path.exists(ckpt) else init_ckpt
     state = load_checkpoint(resume) if resume else None
-    names = list(getattr(env, "obs_names", None) or []) or None
+    names = obs_names_of(env)
     if resume != ckpt:
         torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
     if state is None:
@@ -566,7 +572,7 @@ def checkpoint(ckpt, st: TrainState, kind, cfg, env, level, obs, acc, ep_returns
     design, level, clock, random stream and episode so far) and the last observations, so a run killed and rerun
     goes on exactly as if never stopped; without it a resumed run is another run (docs/ppo_protocol "Resumed
     runs"). A finished run's holds none: continuing it to more steps starts fresh episodes, as a warm start does."""
-    names = getattr(env, "obs_names", None)
+    names = obs_names_of(env)
     new = next_best(st.best, level, st.steps)
     if new is not None:   # the best first: a kill in between redoes both
         st.best = new

@@ -1333,6 +1333,10 @@ def test_experiments_ppo_protocol_names_the_runs_a_kill_resumed(tmp_path):
                                       [1_000_000])
     assert line.startswith("Resumed after a kill") and "lr_cap obstacle seed 2 at 368,640 steps." in line
     assert ppo_protocol._resume_lines(str(tmp_path), [("lr_cap", "obstacle", 0)], [1_000_000]) == ""
+    # asked for fewer milestones than the run went on from: the run's own results count as its schedule
+    assert ppo_protocol.kill_resumes(str(log), []) == [368_640, 1_001_472]
+    (log.parent / "result_1000000.json").write_text("{}")
+    assert ppo_protocol.kill_resumes(str(log), []) == [368_640]
 
 
 @pytest.mark.slow

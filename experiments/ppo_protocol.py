@@ -295,8 +295,13 @@ def kill_resumes(log_csv: str, milestones) -> list:
     (runkit.logs.resume_points). A run trained before ppo.train kept the lanes' state (2026-11-27) started fresh
     episodes there, so not an uninterrupted run's numbers (measured: lr_cap obstacle seed 2 resumed at 368,640
     steps scored 15.4 cm at 2 M, uninterrupted 19.5, docs/ppo_protocol); a later one resumed exactly. Going on
-    from a milestone's checkpoint is the protocol's own schedule, the same for every run."""
-    return resume_points(log_csv, planned=milestones) if os.path.exists(log_csv) else []
+    from a milestone's checkpoint is the protocol's own schedule, the same for every run: the milestones asked
+    for and those the run's folder holds results of (an earlier call may have gone further)."""
+    if not os.path.exists(log_csv):
+        return []
+    kept = [int(f[len("result_"):-len(".json")]) for f in os.listdir(os.path.dirname(log_csv) or ".")
+            if f.startswith("result_") and f.endswith(".json") and f[len("result_"):-len(".json")].isdigit()]
+    return resume_points(log_csv, planned=sorted(set(milestones) | set(kept)))
 
 
 def _resume_lines(out, runs, milestones) -> str:
