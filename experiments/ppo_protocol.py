@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
 import sys
 import time
@@ -299,8 +300,8 @@ def kill_resumes(log_csv: str, milestones) -> list:
     for and those the run's folder holds results of (an earlier call may have gone further)."""
     if not os.path.exists(log_csv):
         return []
-    kept = [int(f[len("result_"):-len(".json")]) for f in os.listdir(os.path.dirname(log_csv) or ".")
-            if f.startswith("result_") and f.endswith(".json") and f[len("result_"):-len(".json")].isdigit()]
+    kept = [int(m[1]) for f in os.listdir(os.path.dirname(log_csv) or ".")
+            if (m := re.fullmatch(r"result_(\d+)\.json", f))]
     return resume_points(log_csv, planned=sorted(set(milestones) | set(kept)))
 
 
