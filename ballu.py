@@ -750,6 +750,22 @@ def obs_config(names, task: str = "obstacle") -> BalluConfig:
     raise ValueError(f"no observation form gives the entries {tuple(names)} on task {task!r}")
 
 
+def policy_config(policy, task: str, cfg: BalluConfig | None = None) -> BalluConfig:
+    """The BalluConfig a policy plays `task` on: `cfg` if given, else the observation it trained with (a learned
+    policy keeps its entries' names: ppo.PolicyFn.obs_names; one from a checkpoint older than the names observed
+    the paper's form), else the default. A policy that observed other entries than cfg gives is a clear error:
+    by name, or by count for a checkpoint without names."""
+    if cfg is None:
+        cfg = obs_config(policy.obs_names, task) if hasattr(policy, "obs_names") else BalluConfig()
+    cfg = replace(cfg, task=task)
+    seen, size, gives = getattr(policy, "obs_names", None), getattr(policy, "obs_dim", None), obs_names(cfg)
+    if (seen is not None and tuple(seen) != gives) or (seen is None and size is not None and size != len(gives)):
+        what = f"{len(seen)} entries {tuple(seen)}" if seen is not None else f"{size} entries (names not kept)"
+        raise ValueError(f"the policy observed {what}, this env (obs={cfg.obs!r}, task={task!r}) gives {gives}: "
+                         f"play it with the BalluConfig it trained with (ballu.obs_config of its names)")
+    return cfg
+
+
 OBS_NAMES = list(obs_names(BalluConfig()))                       # the default (paper's) observation
 TG_OBS_NAMES = list(obs_names(BalluConfig(tg=True)))             # with BalluConfig.tg: its phase after a_l, a_r
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
@@ -1657,7 +1673,8 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     The policy (any picklable callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy;
     one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` (default 20)
     episodes per design, each moving the lane's level one up or down; the level after the last one is the
-    score, in cm (obstacle) or degrees (ramp). [facts]  With workers > 1 the designs are split over the
+    score, in cm (obstacle) or degrees (ramp). [facts]  `cfg` (default: what the policy observed in training,
+    `policy_config`) sets the env; a policy never plays on entries it did not observe. With workers > 1 the designs are split over the
     long-lived `shared_pool`, each worker playing its lanes with its own copy of the policy (no round trip per
     step, no process start-up per call). Each design gets a PyBullet world of its own (lanes_per_world = 1)
     [ours]: a lane's trajectory can depend on which lanes share its world once robots touch the box, and a
@@ -1682,12 +1699,8 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     A walk that holds its level or swings between two costs 1-2 episodes after it gets there.
     `stats` (a dict) receives "episodes_played", the episodes actually simulated (what a J costs).
     """
-    cfg = replace(cfg or BalluConfig(), task=task, lanes_per_world=1,   # one world per design (above)
-                  random_first_episode=False)                           # J plays whole episodes
-    seen = getattr(policy, "obs_names", None)   # what a learned policy observed in training (ppo.PolicyFn)
-    if seen is not None and tuple(seen) != obs_names(cfg):
-        raise ValueError(f"the policy observed {len(seen)} entries {tuple(seen)}, this env (obs={cfg.obs!r}, "
-                         f"task={task!r}) gives {obs_names(cfg)}: score it with the BalluConfig it trained with")
+    cfg = replace(policy_config(policy, task, cfg), lanes_per_world=1,   # one world per design (above)
+                  random_first_episode=False)                            # J plays whole episodes
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
     steps = check_level_steps(level_steps, episodes)
@@ -1730,9 +1743,9 @@ def motion_strip(path, policy=None, task="obstacle", level=30, design=BASELINE, 
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    cfg = replace(cfg or BalluConfig(), task=task)
-    env = BalluEnv(1, cfg, curriculum=False)
     policy = policy or PumpGait(12)
+    cfg = policy_config(policy, task, cfg)
+    env = BalluEnv(1, cfg, curriculum=False)
     obs, _ = env.reset(seed=0, options={"designs": design, "levels": level})
     keep = set(np.linspace(0, cfg.episode_steps - 1, frames).astype(int).tolist())
     shots, xs = [], []

@@ -642,7 +642,8 @@ def test_ballu_warmup_holds_the_curriculum_and_ramps_the_navigation_reward():
 
 def test_ppo_a_checkpoint_of_one_observation_does_not_load_into_an_env_of_another(tmp_path):
     """The checkpoint keeps the env's observation names: resuming or warm-starting on an env that observes
-    other entries of the same count is a clear error, and ballu.score refuses a policy that observed others."""
+    other entries of the same count is a clear error, and ballu.score refuses a policy that observed others (by
+    name, or by count without names) and plays one on what it observed when not told otherwise."""
     env = PointMass(4)
     env.obs_names = ("x", "t")
     cfg = ppo.PPOConfig(num_envs=4, num_steps=8, minibatches=1, epochs=1)
@@ -654,7 +655,12 @@ def test_ppo_a_checkpoint_of_one_observation_does_not_load_into_an_env_of_anothe
         ppo.train("mlp", env, None, 64, str(tmp_path / "q.pt"), cfg, init_ckpt=ckpt, progress=None)
     policy = ppo.load_policy(ckpt)
     policy.obs_names = ballu.obs_names(BalluConfig(obs="code"))
-    with pytest.raises(ValueError, match="score it with the BalluConfig it trained with"):
+    with pytest.raises(ValueError, match="play it with the BalluConfig it trained with"):
+        ballu.score(policy, BASELINE, "obstacle", cfg=BalluConfig())
+    # without a cfg, a policy plays what it observed: its names, or the paper's form for a checkpoint without them
+    assert ballu.policy_config(policy, "obstacle") == BalluConfig(obs="code")
+    policy.obs_names = None
+    with pytest.raises(ValueError, match=r"observed 2 entries \(names not kept\), this env \(obs='paper'"):
         ballu.score(policy, BASELINE, "obstacle")
 
 

@@ -65,7 +65,7 @@ def episode(policy, design, level: int, cfg: ballu.BalluConfig) -> dict:
 
 def diagnose(policy_path: str, design, levels) -> list:
     policy = ppo.load_policy(policy_path)
-    cfg = ballu.obs_config(policy.obs_names, "obstacle")   # the observation it trained with
+    cfg = ballu.policy_config(policy, "obstacle")   # the observation it trained with
     return [episode(policy, design, int(lv), cfg) for lv in levels]
 
 
@@ -110,7 +110,7 @@ def main(argv=None):
     if args.strip and fail:
         policy = ppo.load_policy(args.policy)
         print("wrote", ballu.motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10,
-                                          cfg=ballu.obs_config(policy.obs_names, "obstacle")))
+                                          cfg=ballu.policy_config(policy, "obstacle")))
 
 
 if __name__ == "__main__":

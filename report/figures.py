@@ -3,6 +3,7 @@ and the gait features Fig. 5's claim is measured by. run_all.py's figure stage f
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import numpy as np
 
@@ -22,8 +23,9 @@ def _plt():
 def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) -> np.ndarray:
     """Left/right toe z over one episode (steps, 2): a 1-lane BalluEnv, toe tips from the env's own state. The
     time limit is one step longer than the episode, so the last sample is not taken after an automatic reset."""
-    steps = ballu.BalluConfig().episode_steps
-    env = ballu.BalluEnv(1, ballu.BalluConfig(task=task, episode_steps=steps + 1), curriculum=False)
+    cfg = ballu.policy_config(policy, task)   # the observation it trained with
+    steps = cfg.episode_steps
+    env = ballu.BalluEnv(1, replace(cfg, episode_steps=steps + 1), curriculum=False)
     try:
         obs, _ = env.reset(seed=0, options={"designs": design_full, "levels": level})
         z = []
