@@ -505,9 +505,10 @@ def test_ballu_ramp_terrain_and_toe_height():
     assert ballu.surface_height("ramp", np.array([0.4, 1.25, 2.0, 2.1]), 40).tolist() == pytest.approx(
         [0, 0.4005, 0.801, 0])
     assert ballu.surface_height("obstacle", np.array([0.4, 1.0, 1.6]), 30).tolist() == pytest.approx([0, 0.301, 0])
-    env = BalluEnv(1, replace(BalluConfig(), task="ramp"))
+    cfg = replace(BalluConfig(), task="ramp", obs="paper")   # the paper form's task cue
+    env = BalluEnv(1, cfg)
     obs, _ = env.reset(seed=0, options={"levels": 40})
-    assert obs[0, ballu.OBS_NAMES.index("terrain_height")] == pytest.approx(0.801, abs=1e-6)
+    assert obs[0, ballu.obs_names(cfg).index("terrain_height")] == pytest.approx(0.801, abs=1e-6)
     env.close()
 
 
@@ -1194,12 +1195,13 @@ def test_ppo_vecballu_rollout_in_workers_equals_one_process():
     """ppo's rollout with a policy copy in each of 2 VecBallu workers gives what one process gives."""
     cfg, bcfg = ppo.PPOConfig(num_envs=4, num_steps=6), BalluConfig(task="ramp")
     torch.manual_seed(0)
-    pol = ppo.make_policy("mlp", ballu.OBS_DIM, ballu.ACT_DIM, cfg)
+    obs_dim, act_dim = ballu.dims(bcfg)
+    pol = ppo.make_policy("mlp", obs_dim, act_dim, cfg)
     out = []
     for env in (ballu.make_env(4, 1, bcfg), ballu.VecBallu(4, 2, bcfg)):
         try:
             obs, _ = env.reset(seed=2, options={"design_sampler": ballu.FixedDesign(BASELINE)})
-            norm = ppo.RunningNorm(ballu.OBS_DIM)
+            norm = ppo.RunningNorm(obs_dim)
             norm.update(obs)
             out.append(ppo.rollout("mlp", pol, norm, env, obs, 6, cfg, noise_seed=1))
             if hasattr(env, "run"):
@@ -1242,7 +1244,7 @@ class HysteresisPump:
 
     def __call__(self, obs):
         o = np.asarray(obs)
-        q, last = o[:, 9:11], o[:, 16:18]   # knee angles, last action (ballu observation layout)
+        q, last = o[:, 9:11], o[:, 16:18]   # knee angles, last action (the paper form's layout: obs="paper")
         return np.where(last > 0.5, q < 1.7, q < 0.6).astype(float)
 
 
@@ -1266,7 +1268,7 @@ def test_ballu_score_reuse_replays_known_levels_exactly(monkeypatch):
         for reuse in (False, True):
             steps[0], stats = 0, {}
             out[reuse] = ballu.score(HysteresisPump(), designs, task, episodes=episodes, start_level=start,
-                                     final_x=True, reuse=reuse, stats=stats)
+                                     final_x=True, reuse=reuse, stats=stats, cfg=BalluConfig(obs="paper"))
             cost[reuse], played[reuse] = steps[0], stats["episodes_played"]
         assert played[False] == episodes * len(designs) > played[True]   # what a J costs, for run_all's plan
         np.testing.assert_array_equal(out[True][0], out[False][0])

@@ -35,8 +35,9 @@ from runkit.progress import eta_s
 # "before" is the facts' PPO values with the initial mean action 0.5, what the project first trained with.
 # Every setting but lr_cap was screened before max_lr's default became 1e-3, so it pins the facts' 1e-2 (BEFORE).
 # Settings run on the simulator of their day: docs/ppo_protocol/README.md says which robot each table used.
-BEFORE = {"init_action_mean": 0.5, "max_lr": 1e-2}
-LR_CAP = {"init_action_mean": 0.5, "max_lr": 1e-3, "start_level": "task"}
+# Every setting before issue 69 observed the paper's form, so BEFORE and LR_CAP pin obs="paper" (not the default).
+BEFORE = {"init_action_mean": 0.5, "max_lr": 1e-2, "obs": "paper"}
+LR_CAP = {"init_action_mean": 0.5, "max_lr": 1e-3, "start_level": "task", "obs": "paper"}
 # The authors' warm-up is 100 of their 1,500 updates (6.7 %); the protocol's 2 M steps are 977 updates of 2,048,
 # so the same share is 64 updates: as many of the run's gradient steps go to walking on flat ground.
 WARMUP_STEPS = 64 * 2048

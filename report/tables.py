@@ -56,8 +56,10 @@ def report_header(p, seed: int, commit: str, manifest: dict) -> list:
             "budgets below). '-' = not measured yet / not given by the paper.", "",
             f"- seed {seed}; git commit {commit} (results folder created at {manifest['git_commit']}); "
             f"code hash {manifest['code_hash']}",
-            f"- MDP: the policies observe `obs={ballu.BalluConfig().obs!r}` and are rewarded by "
-            f"`reward_form={ballu.BalluConfig().reward_form!r}` (ballu.BalluConfig; docs/facts.md, Sec. 8)",
+            f"- MDP: the policies observe `obs={ballu.BalluConfig().obs!r}` ("
+            + "; ".join(f"{t}: {', '.join(ballu.obs_blocks(ballu.BalluConfig(task=t)))}" for t in ballu.TASKS)
+            + f") and are rewarded by `reward_form={ballu.BalluConfig().reward_form!r}` (ballu.BalluConfig; "
+            "docs/facts.md, Sec. 8)",
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
             f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
             + {"task": "at uniform levels up to the score's start level on the ramp, at level 0 on the obstacle "
