@@ -1679,9 +1679,10 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` (default 20)
     episodes per design, each moving the lane's level one up or down; the level after the last one is the
     score, in cm (obstacle) or degrees (ramp). [facts]  `cfg` (default: what the policy observed in training,
-    `policy_config`) sets the env; a policy never plays on entries it did not observe. With workers > 1 the designs are split over the
-    long-lived `shared_pool`, each worker playing its lanes with its own copy of the policy (no round trip per
-    step, no process start-up per call). Each design gets a PyBullet world of its own (lanes_per_world = 1)
+    `policy_config`) sets the env; a policy never plays on entries it did not observe. With workers > 1 the
+    designs are split over the long-lived `shared_pool`, each worker playing its lanes with its own copy of the
+    policy (no round trip per step, no process start-up per call). Each design gets a PyBullet world of its own
+    (lanes_per_world = 1)
     [ours]: a lane's trajectory can depend on which lanes share its world once robots touch the box, and a
     design's J must not depend on which designs share its call or on the worker count (for a learned policy
     evaluated row by row, as ppo.PolicyFn is). With `final_x`, also each episode's final pelvis x

@@ -743,7 +743,7 @@ class PolicyFn:
 
     def __init__(self, policy: nn.Module, norm: RunningNorm, cfg: PPOConfig = PPOConfig(), obs_names=None):
         self.policy, self.norm, self.cfg = policy.eval(), norm, cfg
-        self.obs_names = obs_names   # what it observed in training, if its checkpoint says (ballu.score checks)
+        self.obs_names = obs_names   # what it observed in training, if its checkpoint says (ballu.policy_config checks)
         self.obs_dim = len(norm.mean)   # how many entries it observed (checked where the names are not kept)
 
     def __call__(self, obs):

@@ -109,8 +109,7 @@ def main(argv=None):
     fail = next((r for r in rows[passed[0]:] if r["verdict"] != "pass"), None) if passed else rows[0]
     if args.strip and fail:
         policy = ppo.load_policy(args.policy)
-        print("wrote", ballu.motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10,
-                                          cfg=ballu.policy_config(policy, "obstacle")))
+        print("wrote", ballu.motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10))
 
 
 if __name__ == "__main__":
