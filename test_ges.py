@@ -1236,6 +1236,11 @@ def test_ballu_score_in_workers_equals_score_in_one_process():
     assert ballu.shared_pool(2) is ballu.shared_pool(2)
 
 
+# where HysteresisPump reads the knee angles and the last action: the paper form's layout (obs="paper")
+PUMP_KNEES, PUMP_LAST = ([ballu.obs_names(BalluConfig(obs="paper")).index(n) for n in names]
+                         for names in (("q_knee_l", "q_knee_r"), ("a_l", "a_r")))
+
+
 class HysteresisPump:
     """A pure pump gait for tests: keep pulling both knees (last action 1, read from the observation) until a knee
     bends past 1.7 rad, keep releasing until it is straighter than 0.6 rad. No state of its own, so
@@ -1244,7 +1249,7 @@ class HysteresisPump:
 
     def __call__(self, obs):
         o = np.asarray(obs)
-        q, last = o[:, 9:11], o[:, 16:18]   # knee angles, last action (the paper form's layout: obs="paper")
+        q, last = o[:, PUMP_KNEES], o[:, PUMP_LAST]
         return np.where(last > 0.5, q < 1.7, q < 0.6).astype(float)
 
 

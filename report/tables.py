@@ -50,15 +50,16 @@ def md_table(header: list, rows: list) -> list:
 
 def report_header(p, seed: int, commit: str, manifest: dict) -> list:
     """REPORT.md's title and the run's settings: seed, code, and every budget of preset `p` in words."""
+    bcfg = ballu.BalluConfig()
     return [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
             "Every cell is **ours (paper)**. Paper numbers are constants in report/paper.py quoted from "
             "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
             "budgets below). '-' = not measured yet / not given by the paper.", "",
             f"- seed {seed}; git commit {commit} (results folder created at {manifest['git_commit']}); "
             f"code hash {manifest['code_hash']}",
-            f"- MDP: the policies observe `obs={ballu.BalluConfig().obs!r}` ("
+            f"- MDP: the policies observe `obs={bcfg.obs!r}` ("
             + "; ".join(f"{t}: {', '.join(ballu.obs_blocks(ballu.BalluConfig(task=t)))}" for t in ballu.TASKS)
-            + f") and are rewarded by `reward_form={ballu.BalluConfig().reward_form!r}` (ballu.BalluConfig; "
+            + f") and are rewarded by `reward_form={bcfg.reward_form!r}` (ballu.BalluConfig; "
             "docs/facts.md, Sec. 8)",
             f"- budgets: {p.ppo_steps:,} PPO control steps per policy ({p.ppo_envs} envs x {p.ppo_rollout} steps "
             f"per update, initial mean action {p.ppo_init_action_mean}, training lanes start "
