@@ -288,7 +288,7 @@ def protocol(out: str, settings=("before",), tasks=("obstacle", "ramp"), seeds=(
             + _resume_lines(out, runs, milestones))
     with open(os.path.join(out, f"{table}.md"), "w") as f:
         f.write(text)
-    _protocol_curves(out, settings, tasks, seeds, os.path.join(out, f"{table}_curves.png"))
+    _protocol_curves(out, settings, tasks, seeds, os.path.join(out, f"{table}_curves.png"), design)
     return text
 
 
@@ -345,8 +345,9 @@ def _rescore_lines(results, tasks) -> str:
     return "".join(lines)
 
 
-def _protocol_curves(out, settings, tasks, seeds, path):
-    """Mean training curriculum level against control steps, one line per setting (mean over seeds)."""
+def _protocol_curves(out, settings, tasks, seeds, path, design=None):
+    """Mean training curriculum level against control steps, one line per setting (mean over seeds); the title
+    names what the runs trained on (uniform D2, or the one design)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -359,7 +360,8 @@ def _protocol_curves(out, settings, tasks, seeds, path):
                 curves.append((log["steps"], log["mean_level"]))
             n = min(len(c[0]) for c in curves)
             ax.plot(curves[0][0][:n], np.mean([c[1][:n] for c in curves], axis=0), label=s)
-        ax.set(title=f"{t}: e2e MLP on uniform D2", xlabel="control steps", ylabel="mean training level")
+        on = "uniform D2" if design is None else "(" + ", ".join(f"{v:g}" for v in design) + ")"
+        ax.set(title=f"{t}: e2e MLP on {on}", xlabel="control steps", ylabel="mean training level")
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
