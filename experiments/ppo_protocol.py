@@ -360,7 +360,7 @@ def _protocol_curves(out, settings, tasks, seeds, path, design=None):
                 curves.append((log["steps"], log["mean_level"]))
             n = min(len(c[0]) for c in curves)
             ax.plot(curves[0][0][:n], np.mean([c[1][:n] for c in curves], axis=0), label=s)
-        on = "uniform D2" if design is None else "(" + ", ".join(f"{v:g}" for v in design) + ")"
+        on = "uniform D2" if design is None else tuple(design)   # as the table names it
         ax.set(title=f"{t}: e2e MLP on {on}", xlabel="control steps", ylabel="mean training level")
         ax.legend(fontsize=8)
     fig.tight_layout()
