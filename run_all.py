@@ -2,7 +2,7 @@
 
     python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S]
                       [--fresh] [--executor process|dask [--scheduler ADDRESS]]
-    python run_all.py --plan | --rates [--preset P] [--workers N]    # the preset's hours / measure the rates
+    python run_all.py --plan [--out DIR] | --rates [--preset P] [--workers N]   # hours on this machine / rates
 
 Read top to bottom, the paper's experiments section in order:
   1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
@@ -21,11 +21,11 @@ Read top to bottom, the paper's experiments section in order:
   4. figures (helpers that need no run: report/figures.py)
   5. REPORT.md and results.json from the stages' results; the paper's numbers, the header (budgets, seed,
      commit), every table with each cell as "ours (paper)" and the wall times in report/
-  6. machinery: derived seeds, Dask, a kill hook for the resume test, the job --rates times
+  6. machinery: derived seeds, Dask, a kill hook for the resume test, the job --rates and a calibration time
   7. the command line
 Machinery that knows nothing of BALLU or GES (progress and the one ETA formula, atomic JSON and damaged files,
 the training log, the output folder, the stage clock, Dask, the process pool and jobs side by side, statistics,
-and what a preset costs: --plan's arithmetic, --rates' measurement) lives in runkit/.
+and what a preset costs: --plan's arithmetic, its calibration, --rates' measurement) lives in runkit/.
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
 
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
@@ -68,8 +68,10 @@ from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_fig
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_output, git_commit, open_output
-from runkit.logs import train_seconds, training_rate, trim_log
-from runkit.plan import Layout, measure_rates, plan_seconds, plan_text, rates_text
+from runkit.folder import check_ours
+from runkit.logs import read_log, train_seconds, training_rate, trim_log
+from runkit.plan import (CALIBRATION_FILE, CALIBRATION_STEPS, Layout, calibrate, calibration_for, measure_rates,
+                         plan_seconds, plan_text, rates_text)
 from runkit.pool import (GatedExecutor, StopBy, clock_text, close_dask_clients, dask_client, dask_executor,
                          exit_with_parent, side_by_side, stop_time)
 from runkit.progress import Progress, Throttled, eta_s, round_eta, run_eta, say
@@ -338,18 +340,19 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3), cost_trials=2,
                score_start_level=2, probe_level_steps=(2,), peak_episodes=2)
 
-# quick: every table and figure in <= 2 h on 2 cores (`--plan`: 1.97 h): 380k PPO steps per policy; specialists
-# warm-start from their cell's e2e MLP (ges_warm_start, ours) and train 200k steps in round 0 (the budget at which
-# a territory measurably helps, docs/ges_lanes), 10k in round 1, the last (2 rounds, F = 3 probes). The time came
-# from what 18-20 test designs cannot resolve anyway: Table III runs grid against FPS + Lloyd only, Fig. 7 K = 1
-# and 3; and from 18 test designs, TPE searches of 4 trials, 2 per-design BO trials, no 30-episode
+# quick: every table and figure in <= 2 h on 2 cores (`--plan`: 1.87 h on the machine calibrated in docs/quick):
+# 380k PPO steps per policy (the e2e MLP's level climbs steeply to there: docs/ppo_protocol); specialists
+# warm-start from their cell's e2e MLP (ges_warm_start, ours) and train 150k steps in round 0 (a territory
+# measurably helps from ~200k, docs/ges_lanes; 150k is what fits), 10k in round 1, the last (2 rounds, F = 3).
+# The time came from what 18-20 test designs cannot resolve anyway: Table III runs grid against FPS + Lloyd only,
+# Fig. 7 K = 1 and 3; and from 18 test designs, TPE searches of 4 trials, 2 per-design BO trials, no 30-episode
 # rescore of the TPE peaks. ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init (`python ges.py
 # --sweep`). What each stage buys, in hours and centimetres: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=18, tpe_trials=4, tpe_startup=2, ges_max_rounds=2, ges_probes=3,
                ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 3),
                cost_trials=2, ges_warm_start=True, table3_inits=("grid", "fps+lloyd"),
-               ges_first_round_steps=200_000)
+               ges_first_round_steps=150_000)
 
 # overnight: one night on 2 cores (`--plan`: 11.2 h with every GES run at its round cap): 1 M PPO steps per policy
 # (the universal policy's J is flat from 1 to 5 M: docs/ppo_protocol); specialists warm-start from it and train
@@ -1052,9 +1055,10 @@ def report(run: Run, manifest: dict) -> str:
     for name, write in sections:
         if results[name]:
             lines += write(results[name])
-    lines += report_wall(times, plan_seconds(run.preset, LAYOUT, max(1, run.workers)), STAGES,
-                         f"python run_all.py --preset {run.preset.name} --plan --workers {run.workers}",
-                         training_rate(run.out))
+    cal = calibration(run, measure=False)
+    lines += report_wall(times, plan_seconds(run.preset, LAYOUT, max(1, run.workers), cal), STAGES,
+                         f"python run_all.py --preset {run.preset.name} --plan --workers {run.workers} --out "
+                         "<this folder>", training_rate(run.out), cal)
     text = "\n".join(lines).rstrip("\n") + "\n"
     tmp = run.path(f"REPORT.md.tmp{os.getpid()}")   # atomic, as every write of a run
     with open(tmp, "w") as fh:
@@ -1118,7 +1122,7 @@ def code_hash() -> str:
 
 def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps: int = 40_960,
              n_designs: int = 3) -> tuple:
-    """One job of `--rates`, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
+    """One job of `--rates` or a calibration, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
     for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
     score steps/s: the steps J actually simulated, replays excluded)."""
     space = space_of(preset, task, "d2")
@@ -1131,7 +1135,32 @@ def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps
                  stats=stats)
     scored = time.time() - t1
     played = stats["episodes_played"] * ballu.BalluConfig().episode_steps
-    return steps / (t1 - t0), scored / n_designs, played / scored
+    rates = read_log(os.path.join(folder, "log.csv"))["steps_per_s"][1:]   # the first update also builds the env
+    train = len(rates) / np.sum(1.0 / rates) if len(rates) else steps / (t1 - t0)   # as REPORT.md's rate line
+    return train, scored / n_designs, played / scored
+
+
+def calibration(run: Run, measure: bool = True) -> dict | None:
+    """The rates this run is planned at (runkit.plan.calibrate): its folder's calibration, or one measured now
+    (< 60 s) and kept there, so `--plan` and the run it plans use one measurement. None (the plan's constants)
+    without `measure`, or for a preset whose policies train fewer steps than a calibration job (smoke): measuring
+    would cost more than the run trains."""
+    batch, path = (run.preset.ppo_envs, run.preset.ppo_rollout), run.path(CALIBRATION_FILE)
+    try:
+        cal = calibration_for(read_json(path) if os.path.exists(path) else None, run.workers, batch)
+    except (OSError, *READ_ERRORS):   # a damaged calibration is measured anew
+        cal = None
+    if cal or not measure or run.preset.ppo_steps < CALIBRATION_STEPS:
+        return cal
+    check_ours(run.out)   # somebody else's folder is refused before anything is written
+    say(f"calibrating the plan's rates on this machine: {run.workers} job(s) side by side, < 60 s")
+    job = functools.partial(rate_job, preset=run.preset, steps=CALIBRATION_STEPS, n_designs=1)
+    cal = calibrate(job, replace(run, stop_by=None).pool(), run.workers, batch)
+    os.makedirs(run.out, exist_ok=True)
+    write_json(path, cal)
+    say(f"calibrated: PPO {cal['train_rate']:.0f}, score {cal['score_rate']:.0f} control steps/s per job, in "
+        f"{cal['seconds']:.0f} s: {path}")
+    return cal
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -1141,10 +1170,11 @@ def parse(argv):
     ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
     ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "
-                    "--workers cores at the measured rates (runkit.plan.TRAIN_RATE, SCORE_RATE), then exit")
-    ap.add_argument("--rates", action="store_true", help="measure those rates with the preset's batch: an e2e MLP "
-                    "and MoE on each task, --workers side by side, each training 40,960 PPO steps and scoring 3 "
-                    "designs (~4 min), then exit")
+                    "--workers cores at this machine's rates: --out's calibration.json, or measured now (< 60 s) "
+                    "and kept there for the run; then exit")
+    ap.add_argument("--rates", action="store_true", help="measure the rates at length with the preset's batch: an "
+                    "e2e MLP and MoE on each task, --workers side by side, each training 40,960 PPO steps and "
+                    "scoring 3 designs (~4 min), beside the constants a run without calibration is planned at")
     ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(STAGES)}")
     ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
@@ -1258,7 +1288,8 @@ def main(argv=None) -> int:
             raise BadInput(f"--workers {args.workers} must be >= 1")
         stop_by = stop_time(args.stop_by) if args.stop_by else None
         if args.plan:
-            print(plan_text(preset, LAYOUT, args.workers), flush=True)
+            cal = calibration(Run(out, preset, args.seed, args.workers, args.executor, args.scheduler))
+            print(plan_text(preset, LAYOUT, args.workers, cal), flush=True)
             return 0
         if args.rates:
             job, pool = functools.partial(rate_job, preset=preset), Run("", preset, 0, args.workers).pool()
@@ -1277,7 +1308,7 @@ def main(argv=None) -> int:
         t0 = time.time()
         say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
             f"stages {stages}" + (f"; no job starts after {clock_text(stop_by)}" if stop_by else ""))
-        planned = plan_seconds(preset, LAYOUT, args.workers)
+        planned = plan_seconds(preset, LAYOUT, args.workers, calibration(run))
         todo, ran = [s for s in stages if not stage_done(out, s)], {}
         recorded = functools.partial(stage_times, run.path("stage_seconds.json"))
         if todo:

@@ -34,6 +34,7 @@ from report import figures, tables
 from runkit import logs, plan, pool, progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
+from runkit.folder import check_output, open_output
 from ballu import BASELINE, BalluConfig, BalluEnv
 from tpe import TPE, Parzen, TPEConfig, bandwidths, build_parzen, n_good, optimize, recency_weights
 
@@ -3021,8 +3022,44 @@ def test_runkit_plan_counts_the_work_a_run_does(smoke_run, capsys):
                  for f in glob.glob(os.path.join(smoke_run, "ges", "*", "state.json"))
                  for h in read_json(f)["history"])
     assert probed * len(p.probe_level_steps) * ep == sum(v["probe_steps"] for v in pl.values())   # all at the cap
-    assert run_all.main(["--preset", "quick", "--plan"]) == 0
-    assert "total" in capsys.readouterr().out
+    assert run_all.main(["--preset", "smoke", "--plan", "--out", smoke_run]) == 0   # smoke: planned at the constants
+    assert f"{plan.TRAIN_RATE:.0f} PPO" in capsys.readouterr().out
+
+
+def test_run_all_plan_calibrates_once_where_the_run_goes(tmp_path, capsys, monkeypatch):
+    """--plan measures the machine once (runkit.plan.calibrate, faked here: the real one takes ~40 s) into the
+    output folder and plans at its rates; a second --plan and the run itself reuse it; other workers measure
+    anew; a folder holding only the calibration is still free for the run, which keeps it."""
+    calls = []
+
+    def fake(job, executor, workers, batch):
+        executor.shutdown()
+        calls.append(workers)
+        return {"workers": workers, "jobs": ["mlp obstacle"] * workers, "train_rate": 444.0, "score_rate": 333.0,
+                "seconds": 1.0, "time": "now", "cpu": "test CPU", "batch": list(batch)}
+
+    monkeypatch.setattr(run_all, "calibrate", fake)
+    out = str(tmp_path / "q")
+    assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "at 444 PPO / 333 score" in text and "calibrated on test CPU" in text, text
+    assert os.listdir(out) == [plan.CALIBRATION_FILE] and calls == [1]
+    hours = float(re.search(r"total +([\d.]+) h", text).group(1))
+    slow = plan.plan(run_all.QUICK, run_all.LAYOUT, 1, 444.0, 333.0)
+    assert hours == pytest.approx(sum(v["hours"] for v in slow.values()), abs=0.006)
+    assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "1"]) == 0 and calls == [1]
+    assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "2"]) == 0 and calls == [1, 2]
+    manifest = {"results_format": 0, "preset": "quick", "budgets": {}, "seed": 0, "code_hash": "x"}
+    assert check_output(out, manifest, fresh=False) is False   # only a calibration: not a run yet
+    open_output(out, manifest, reuse=False)
+    assert sorted(os.listdir(out)) == sorted([plan.CALIBRATION_FILE, "manifest.json"])
+    run = run_all.Run(out, run_all.QUICK, 0, 2)
+    assert run_all.calibration(run)["train_rate"] == 444.0 and calls == [1, 2]   # the run plans at --plan's rates
+    assert run_all.calibration(replace(run, preset=run_all.SMOKE)) is None       # another batch, too small to time
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("x")
+    assert run_all.main(["--preset", "quick", "--plan", "--out", str(tmp_path / "other")]) == 2   # not ours
+    assert calls == [1, 2]
 
 
 @pytest.mark.slow

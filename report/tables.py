@@ -9,7 +9,7 @@ import numpy as np
 import ballu
 from report.paper import (CELLS, METHOD_NAMES, PAPER_COST, PAPER_KSENS_PEAK_K, PAPER_PEAK, PAPER_PEAK_DESIGN,
                           PAPER_TABLE1, PAPER_TABLE2, PAPER_TABLE3, PAPER_TPE_TRIALS, PAPER_WINS)
-from runkit.plan import SCORE_RATE, TRAIN_RATE
+from runkit.plan import rates_of, rates_source
 from runkit.stats import CI_LEVEL, N_BOOT, bootstrap_ci, paired_comparison, verdict
 
 # [ours] the gait features Fig. 5's claim is measured by, in the report's words
@@ -88,11 +88,12 @@ def score_text(p) -> str:
     return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
 
 
-def report_wall(times: dict, planned: dict, stages, command: str, rate: tuple) -> list:
+def report_wall(times: dict, planned: dict, stages, command: str, rate: tuple, cal: dict | None = None) -> list:
     """Each stage's wall time (`times`, all attempts) beside --plan's at this attempt's workers (`planned`, by
-    `command`), in `stages`' order, and the PPO rate the run trained at (`rate`: runkit.logs.training_rate)
-    beside the plan's: a stage over its plan on a machine running below the plan's rates says the machine, not
-    the plan, was slow (docs/presets.md: this machine drifts +-20 % and more)."""
+    `command`, at the rates of the run's calibration `cal`, or the constants), in `stages`' order, and the PPO
+    rate the run trained at (`rate`: runkit.logs.training_rate) beside the plan's: a stage over its plan while
+    the run trained below the plan's rate says the machine slowed after it was measured, not that the plan is
+    wrong (docs/presets.md: this machine drifts +-20 % and more)."""
     ratio = lambda s, p: f"{s / p:.2f}" if p else "-"   # noqa: E731
     rows = [[n, f"{times[n]:.0f} s", f"{planned[n]:.0f} s" if n in planned else "-", ratio(times[n], planned.get(n))]
             for n in stages if n in times]
@@ -100,13 +101,13 @@ def report_wall(times: dict, planned: dict, stages, command: str, rate: tuple) -
     total_plan = sum(v for n, v in planned.items() if n in times)
     rows.append(["total", f"{total:.0f} s = {total / 3600:.2f} h", f"{total_plan:.0f} s = {total_plan / 3600:.2f} h",
                  ratio(total, total_plan)])
-    ppo, logs = rate
+    (ppo, logs), (train, score) = rate, rates_of(cal)
     lines = ["## Wall time per stage (all attempts)", "",
-             f"Plan: `{command}` (GES at its round cap; at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
-             "steps/s per core)."]
+             f"Plan: `{command}` (GES at its round cap; at {train:.0f} PPO / {score:.0f} score control steps/s per "
+             f"core, {rates_source(cal)})."]
     if logs:
         lines += [f"PPO trained at {ppo:.0f} control steps/s per job in this run ({logs} training logs; harmonic "
-                  f"mean of their updates), {100 * ppo / TRAIN_RATE:.0f} % of the plan's {TRAIN_RATE:.0f}."]
+                  f"mean of their updates), {100 * ppo / train:.0f} % of the plan's {train:.0f}."]
     return lines + [""] + md_table(["stage", "wall time", "plan", "measured / plan"], rows)
 
 

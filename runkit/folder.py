@@ -6,6 +6,7 @@ import shutil
 import subprocess
 
 from runkit.files import FRESH, BadInput, read_back, read_json, write_json
+from runkit.plan import CALIBRATION_FILE
 
 
 def git_commit(where: str) -> str:
@@ -20,17 +21,25 @@ def git_commit(where: str) -> str:
         return "unknown"
 
 
+def check_ours(out: str) -> bool:
+    """True if `out` holds a run (its manifest.json); False if it is missing, empty or holds only a calibration
+    (`--plan` measured this machine there before the run); refuses a file and a folder of somebody else's."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise BadInput(f"--out {out} exists and is not a folder")
+    if not (os.path.isdir(out) and set(os.listdir(out)) - {CALIBRATION_FILE}):
+        return False
+    if not os.path.exists(os.path.join(out, "manifest.json")):
+        raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
+    return True
+
+
 def check_output(out: str, manifest: dict, fresh: bool) -> bool:
     """Read-only check of the output folder; True if it holds this very run (reuse its finished work).
     Refuses a non-empty folder that is not ours, and one made by another preset / budgets / seed / code
     version unless --fresh."""
     mpath = os.path.join(out, "manifest.json")
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise BadInput(f"--out {out} exists and is not a folder")
-    if not (os.path.isdir(out) and os.listdir(out)):
+    if not check_ours(out):
         return False
-    if not os.path.exists(mpath):
-        raise BadInput(f"{out} is not empty and has no manifest.json: not a run_all.py folder; choose another --out")
     if fresh:   # ours (it has a manifest.json), wiped whatever that file holds
         return False
     old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
@@ -44,14 +53,15 @@ def check_output(out: str, manifest: dict, fresh: bool) -> bool:
 
 
 def open_output(out: str, manifest: dict, reuse: bool) -> dict:
-    """Start over (wipe our own old folder) or reuse it; returns the folder's manifest."""
+    """Start over (wipe our own old folder) or reuse it; returns the folder's manifest. A folder with only a
+    calibration keeps it: the run goes on at the rates its --plan gave."""
     mpath = os.path.join(out, "manifest.json")
     if reuse:
         return read_json(mpath)
     try:
-        if os.path.isdir(out):
-            shutil.rmtree(out)   # check_output allowed it: empty, or ours and --fresh
-        os.makedirs(out)
+        if os.path.exists(mpath):
+            shutil.rmtree(out)   # check_output allowed it: ours and --fresh
+        os.makedirs(out, exist_ok=True)
         write_json(mpath, manifest)
     except OSError as e:
         shutil.rmtree(out, ignore_errors=True)   # a failed command leaves no empty folder behind

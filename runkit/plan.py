@@ -1,22 +1,23 @@
-"""What a preset costs: the arithmetic behind every preset's wall time (`run_all.py --plan`) and the measurement
-of the rates it uses (`--rates`). It reads a preset's numbers and the run's Layout (what every run is made of,
-counted), so it knows nothing of BALLU or GES; the numbers behind each constant: docs/presets.md."""
+"""What a preset costs: the arithmetic behind every preset's wall time (`run_all.py --plan`), at rates measured on
+the machine the run goes on (a short calibration kept in the output folder) or at `--rates`' longer measurement.
+It reads a preset's numbers and the run's Layout (what every run is made of, counted), so it knows nothing of
+BALLU or GES; the numbers behind each constant: docs/presets.md."""
 from __future__ import annotations
 
 import math
 import os
+import platform
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 # [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
-# busy, each kind of policy on each task), measured by `python run_all.py --rates` (docs/presets.md).
+# busy, each kind of policy on each task), measured by `python run_all.py --rates` on one machine: the plan's
+# rates where no calibration of the run's own machine is at hand (docs/presets.md). VMs of one kind differ ~2x.
 TRAIN_RATE, SCORE_RATE = 880.0, 840.0
-# [ours] the PPO rate whole runs train at, below --rates' minutes (their REPORT.md's rate line, docs/presets.md):
-# --plan gives a preset's hours at both.
-RUN_RATE = 650.0
 # [ours] share of a J's episodes that ballu.score plays (`reuse` replays the rest exactly): the larger of two
 # measurements, since the plan is an upper bound (docs/presets.md). The step counts stay every episode's.
 SCORE_PLAYED = 0.66
@@ -103,26 +104,37 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
                     "hours": hours(stage)} for stage, w in work.items()}
 
 
-def plan_seconds(preset, layout: Layout, workers: int) -> dict:
-    """The plan's seconds per stage (the whole run's ETA and REPORT.md's wall-time table set these beside)."""
-    return {stage: 3600 * v["hours"] for stage, v in plan(preset, layout, workers).items()}
+def rates_of(cal: dict | None) -> tuple:
+    """(train_rate, score_rate) of a calibration (calibrate), or the constants without one."""
+    return (cal["train_rate"], cal["score_rate"]) if cal else (TRAIN_RATE, SCORE_RATE)
 
 
-def plan_text(preset, layout: Layout, workers: int = 2) -> str:
-    """--plan's lines: each stage's work and hours, the total at the measured rates and at RUN_RATE."""
-    rows = plan(preset, layout, workers)
-    lines = [f"preset {preset.name} on {workers} core(s) at {TRAIN_RATE:.0f} PPO / {SCORE_RATE:.0f} score control "
-             f"steps/s per core, scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its round cap of "
-             f"{preset.ges_max_rounds}):"]
+def plan_seconds(preset, layout: Layout, workers: int, cal: dict | None = None) -> dict:
+    """The plan's seconds per stage at a calibration's rates (the whole run's ETA and REPORT.md's wall-time table
+    set these beside)."""
+    return {stage: 3600 * v["hours"] for stage, v in plan(preset, layout, workers, *rates_of(cal)).items()}
+
+
+def rates_source(cal: dict | None) -> str:
+    """Where the plan's rates come from, in a line's words."""
+    if not cal:
+        return "the constants TRAIN_RATE / SCORE_RATE (no calibration of this machine)"
+    return (f"calibrated on {cal['cpu']} at {cal['time']} ({len(cal['jobs'])} jobs side by side, "
+            f"{cal['seconds']:.0f} s)")
+
+
+def plan_text(preset, layout: Layout, workers: int = 2, cal: dict | None = None) -> str:
+    """--plan's lines: each stage's work and hours at a calibration's rates (or the constants), and the total."""
+    train, score = rates_of(cal)
+    rows = plan(preset, layout, workers, train, score)
+    lines = [f"preset {preset.name} on {workers} core(s) at {train:.0f} PPO / {score:.0f} score control steps/s per "
+             f"core, {rates_source(cal)}; scores playing {100 * SCORE_PLAYED:.0f} % of their episodes (GES at its "
+             f"round cap of {preset.ges_max_rounds}):"]
     lines += [f"  {k:10s} PPO {v['ppo_steps'] / 1e6:8.2f} M steps   scores {v['score_steps'] / 1e6:8.2f} M   "
               f"probes {v['probe_steps'] / 1e6:8.2f} M   {v['hours']:7.2f} h" for k, v in rows.items()]
     total = sum(v["hours"] for v in rows.values())
-    slow = RUN_RATE / TRAIN_RATE   # scores taken as slowed alike: the whole machine ran slower
-    run_h = sum(v["hours"] for v in plan(preset, layout, workers, RUN_RATE, SCORE_RATE * slow).values())
     return "\n".join(lines + [f"  {'total':10s} {total:.2f} h = {60 * total:.1f} min "
-                              f"({total * workers:.1f} core-hours)",
-                              f"  {run_h:.2f} h at the {RUN_RATE:.0f} PPO control steps/s per core whole runs "
-                              f"trained at (RUN_RATE)"])
+                              f"({total * workers:.1f} core-hours)"])
 
 
 # [ours] the jobs `--rates` times, as the stages mix them: each kind of policy on each task (the ramp's contacts
@@ -161,3 +173,41 @@ def rates_text(r: dict) -> str:
     return (f"{len(r['jobs'])} job(s), {r['workers']} side by side: {jobs}\n"
             f"measured TRAIN_RATE {r['train_rate']:.0f}, SCORE_RATE {r['score_rate']:.0f} against the constants "
             f"{TRAIN_RATE:.0f}, {SCORE_RATE:.0f} that --plan uses")
+
+
+# [ours] a calibration: its file in the output folder, and the PPO steps each of its jobs trains (6 updates of the
+# quick and overnight batch; with one design's J after it, 2 jobs side by side take < 60 s, the pool's start
+# included: docs/presets.md, "The plan's rates")
+CALIBRATION_FILE, CALIBRATION_STEPS = "calibration.json", 12_288
+
+
+def cpu_name() -> str:
+    """The CPU model (Linux /proc/cpuinfo; else platform's word): a calibration names the machine it measured."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
+
+
+def calibrate(rate_job, executor, workers: int, batch: tuple) -> dict:
+    """The rates a run is planned at, measured where it runs and as it runs its jobs: `workers` single-process
+    jobs side by side (RATE_JOBS' first ones: an e2e MLP on the obstacle, an e2e MoE on the ramp), each training
+    briefly then scoring one design (`rate_job` as in measure_rates, its PPO rate over the updates after the first,
+    as REPORT.md's rate line counts them). [ours] A constant planned one VM's run 1.5x short, and another VM of the
+    same kind benches at half the speed: a minute's measurement plans both (docs/presets.md). `batch` (PPO envs,
+    steps per update) is recorded: a calibration is reused only for the same batch and workers (calibration_for)."""
+    t0 = time.time()
+    r = measure_rates(rate_job, executor, workers, jobs=workers)
+    r.update(seconds=time.time() - t0, time=time.strftime("%Y-%m-%d %H:%M"), cpu=cpu_name(), batch=list(batch))
+    return r
+
+
+def calibration_for(cal: dict | None, workers: int, batch: tuple) -> dict | None:
+    """A stored calibration if it measured this many workers side by side at this PPO batch, else None."""
+    if cal and cal.get("workers") == workers and tuple(cal.get("batch", ())) == tuple(batch):
+        return cal
+    return None
