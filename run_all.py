@@ -67,8 +67,7 @@ from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_fig
                            report_ksens, report_table1, report_table2, report_table3, report_wall)
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
-from runkit.folder import check_output, git_commit, open_output
-from runkit.folder import check_ours
+from runkit.folder import check_ours, check_output, git_commit, open_output
 from runkit.logs import read_log, train_seconds, training_rate, trim_log
 from runkit.plan import (CALIBRATION_FILE, CALIBRATION_STEPS, Layout, calibrate, calibration_for, measure_rates,
                          plan_seconds, plan_text, rates_text)
@@ -1122,9 +1121,9 @@ def code_hash() -> str:
 
 def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps: int = 40_960,
              n_designs: int = 3) -> tuple:
-    """One job of `--rates` or a calibration, as a stage runs it (in-process env, one core): train an e2e `kind` on `task` D2
-    for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s, s per J, played
-    score steps/s: the steps J actually simulated, replays excluded)."""
+    """One job of `--rates` or a calibration, as a stage runs it (in-process env, one core): train an e2e `kind`
+    on `task` D2 for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s over
+    the updates after the first, s per J, played score steps/s: the steps J actually simulated, replays excluded)."""
     space = space_of(preset, task, "d2")
     t0 = time.time()
     ckpt = train_policy(os.path.join(folder, "policy.pt"), kind, task, ballu.UniformDesign(space), steps, preset, seed)

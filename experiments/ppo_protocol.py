@@ -29,6 +29,7 @@ import ppo
 from experiments.ppo_ballu import parse_design
 from runkit.files import write_json
 from runkit.logs import read_log, resume_points
+from runkit.plan import cpu_model
 from runkit.progress import eta_s
 
 # Each setting = changes to ppo.PPOConfig, to ballu.BalluConfig, and/or the training curriculum's "start_level".
@@ -209,18 +210,6 @@ def _keep_best(folder, ckpt, m, m_steps, earlier):
     else:
         os.replace(running, os.path.join(folder, name))
     return name, best
-
-
-def cpu_model() -> str:
-    """The CPU's model name. J is reproducible bit for bit on one machine, not across CPU models: their rounding
-    differs and contacts amplify it (one checkpoint, 12 designs: mean J 21.0 cm on an AMD EPYC VM, 18.9 on an
-    Intel Xeon VM, 11 designs different), so a comparison's scores come from one machine."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        import platform
-        return platform.processor() or platform.machine()
 
 
 def _mean_se(values) -> str:

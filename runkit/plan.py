@@ -181,16 +181,16 @@ def rates_text(r: dict) -> str:
 CALIBRATION_FILE, CALIBRATION_STEPS = "calibration.json", 12_288
 
 
-def cpu_name() -> str:
-    """The CPU model (Linux /proc/cpuinfo; else platform's word): a calibration names the machine it measured."""
+def cpu_model() -> str:
+    """The CPU's model name: a calibration names the machine it measured. J is reproducible bit for bit on one
+    machine, not across CPU models: their rounding differs and contacts amplify it (one checkpoint, 12 designs:
+    mean J 21.0 cm on an AMD EPYC VM, 18.9 on an Intel Xeon VM, 11 designs different), so a comparison's scores
+    come from one machine (experiments/ppo_protocol)."""
     try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown CPU"
+        with open("/proc/cpuinfo") as f:
+            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or platform.machine()
 
 
 def calibrate(rate_job, executor, workers: int, batch: tuple) -> dict:
@@ -202,7 +202,7 @@ def calibrate(rate_job, executor, workers: int, batch: tuple) -> dict:
     steps per update) is recorded: a calibration is reused only for the same batch and workers (calibration_for)."""
     t0 = time.time()
     r = measure_rates(rate_job, executor, workers, jobs=workers)
-    r.update(seconds=time.time() - t0, time=time.strftime("%Y-%m-%d %H:%M"), cpu=cpu_name(), batch=list(batch))
+    r.update(seconds=time.time() - t0, time=time.strftime("%Y-%m-%d %H:%M"), cpu=cpu_model(), batch=list(batch))
     return r
 
 
