@@ -339,30 +339,32 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3), cost_trials=2,
                score_start_level=2, probe_level_steps=(2,), peak_episodes=2)
 
-# quick: every table and figure in <= 2 h on 2 cores (`--plan`: 1.87 h on the machine calibrated in docs/quick):
-# 380k PPO steps per policy (the e2e MLP's level climbs steeply to there: docs/ppo_protocol); specialists
-# warm-start from their cell's e2e MLP (ges_warm_start, ours) and train 150k steps in round 0 (a territory
-# measurably helps from ~200k, docs/ges_lanes; 150k is what fits), 10k in round 1, the last (2 rounds, F = 3).
-# The time came from what 18-20 test designs cannot resolve anyway: Table III runs grid against FPS + Lloyd only,
-# Fig. 7 K = 1 and 3; and from 18 test designs, TPE searches of 4 trials, 2 per-design BO trials, no 30-episode
-# rescore of the TPE peaks. ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init (`python ges.py
-# --sweep`). What each stage buys, in hours and centimetres: docs/presets.md.
+# quick: every table and figure in ~2-3 h on 2 cores (`--plan`: 2.79 h at the calibration in docs/quick, which
+# took 2.73 h): 380k PPO steps per policy (the e2e MLP's level climbs steeply to there: docs/ppo_protocol);
+# specialists warm-start from their cell's e2e MLP (ges_warm_start, ours) and train 150k steps in round 0 (a
+# territory measurably helps from ~200k, docs/ges_lanes; 150k is what fits), 10k in round 1, the last (2 rounds,
+# F = 3). The time came from what 18-20 test designs cannot resolve anyway: Table III runs grid against FPS +
+# Lloyd only, Fig. 7 K = 1 and 3; and from 18 test designs, TPE searches of 4 trials, 2 per-design BO trials, no
+# 30-episode rescore of the TPE peaks. ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init
+# (`python ges.py --sweep`). What each stage buys, in hours and centimetres: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=18, tpe_trials=4, tpe_startup=2, ges_max_rounds=2, ges_probes=3,
                ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 3),
                cost_trials=2, ges_warm_start=True, table3_inits=("grid", "fps+lloyd"),
                ges_first_round_steps=150_000)
 
-# overnight: one night on 2 cores (`--plan`: 11.2 h with every GES run at its round cap): 1 M PPO steps per policy
-# (the universal policy's J is flat from 1 to 5 M: docs/ppo_protocol); specialists warm-start from it and train
-# 1 M steps in round 0 (one design's J still climbs there: the night's steps buy most in the specialists), 100k in
-# each later one, to 95 % coverage or 3 rounds (facts: 20) with F = 10; Fig. 7 at K = 1, 3 and 6 (the paper's peak
-# and both ends); 50 test designs; the paper's 40 TPE trials. The numbers behind each: docs/presets.md.
-OVERNIGHT = Preset("overnight", ppo_steps=1_000_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
-                   score_episodes=20, n_test=50, tpe_trials=40, tpe_startup=10, ges_max_rounds=3, ges_probes=10,
+# overnight: one night on 2 cores (`--plan`: 9.3 h at quick's calibration in docs/quick, 10.7 h at a slower hour's,
+# every GES run at its round cap): 800k PPO steps per policy (the e2e MLP reaches 22.5 cm at 1 M, 24.3 at 2 M:
+# docs/ppo_protocol); specialists warm-start from it and train 600k steps in round 0 (one design's J still climbs
+# there: the night's steps buy most in the specialists), 100k in each later one, to 95 % coverage or 3 rounds
+# (facts: 20) with F = 10. The time came from what 40 test designs do not resolve either (as in quick): Table III
+# grid against FPS + Lloyd, Fig. 7 K = 1 and 3 (the paper's peak and one end), 2 per-design BO trials; 40 test
+# designs, 20 TPE trials (paper: 40). The numbers behind each: docs/presets.md.
+OVERNIGHT = Preset("overnight", ppo_steps=800_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
+                   score_episodes=20, n_test=40, tpe_trials=20, tpe_startup=10, ges_max_rounds=3, ges_probes=10,
                    ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000,
-                   ksens_K=(1, 3, 6), cost_trials=4, ges_warm_start=True, peak_episodes=30,
-                   ges_first_round_steps=1_000_000)
+                   ksens_K=(1, 3), cost_trials=2, ges_warm_start=True, peak_episodes=30,
+                   table3_inits=("grid", "fps+lloyd"), ges_first_round_steps=600_000)
 
 # paper: the paper's sizes (1000 test designs, K = 3/6, 95 % coverage, F = 100, 40 TPE trials, 20 rounds);
 # PPO budgets are ours (the paper does not state them; the authors ran 4096 envs on a GPU). For a cluster or a big

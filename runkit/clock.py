@@ -18,7 +18,7 @@ STAGE_CLOCK_S = 60.0   # a stage killed by SIGKILL loses at most this much of it
 class StageClock:
     """Adds a stage's wall time to stage_seconds.json every `every` seconds and once more at close(), so an
     attempt killed by SIGKILL (a session's end), which runs no `finally`, still counts toward the stage's cost
-    (docs/overnight/RUN.md). [ours] A daemon thread ticks."""
+    (docs/archive/paper_obs/overnight/RUN.md). [ours] A daemon thread ticks."""
 
     def __init__(self, path: str, name: str, every: float = STAGE_CLOCK_S):
         self.path, self.name, self.t0 = path, name, time.time()
