@@ -2914,8 +2914,8 @@ def test_run_all_train_seconds_counts_every_attempt(tmp_path):
     """A training resumed after a kill counts both attempts (ppo.train's wall_s restarts at a resume) and not the
     updates the kill lost past its checkpoint; the cost stage's warm-start e2e MLP and BO trials use it, so a
     policy finished just before a kill costs its whole training, not the ~0 s of the attempt that found it done
-    (docs/archive/paper_obs/overnight/RUN.md). A BO trial's cost is its seconds.json (training + J), tpe's own time when the file
-    is missing or damaged."""
+    (docs/archive/paper_obs/overnight/RUN.md). A BO trial's cost is its seconds.json (training + J), tpe's own
+    time when the file is missing or damaged."""
     cfg = ppo.PPOConfig(num_envs=8, num_steps=16, design_dim=1)
     ck, log = str(tmp_path / "p.pt"), str(tmp_path / "log.csv")
     calls = []
