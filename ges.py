@@ -30,13 +30,14 @@ specialists can run in a process pool):
         designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
 
 Read top to bottom: 1. the design box, 2. settings and randomness, 3. territories (f_k, coverage, router, refit),
-4. initialisation, 5. executors, 6. state, history and result, 7. the GES loop (Alg. 1), 8. the routed
-evaluator, 9. figures, 10. the synthetic landscape, 11. benchmark and command line.
+4. initialisation, 5. executors, 6. state, history and result, 7. the GES loop (Alg. 1), 7b. adaptive K (an
+option, ours: merge a specialist another serves as well, split a territory its specialist serves unevenly),
+8. the routed evaluator, 9. figures, 10. the synthetic landscape, 11. benchmark and command line.
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn),
 plot_territories(history, path). `python ges.py --bench` times coverage/routing, `python ges.py --demo OUT`
-runs a synthetic landscape and writes OUT/territories.png, `python ges.py --sweep` prints rounds to coverage
-per (n_init, F) on it.
+runs a synthetic landscape and writes OUT/territories.png (`--K auto --sites B` on B planted sites: adaptive
+K), `python ges.py --sweep` prints rounds to coverage per (n_init, F) on it.
 """
 from __future__ import annotations
 
@@ -155,6 +156,16 @@ class GESConfig:
     var_floor: float = 1e-4           # per-axis variance floor (1 % of the range)^2 in unit coords [facts]
     init: str = "fps+lloyd"           # centre initialisation [paper, Sec. IV-B and Table III]
     router: str = "density"           # outer-loop router: 'density' [paper, eq. 10] or 'oracle' [facts, QUIRK]
+    # Adaptive K [ours; the paper's Sec. VI names it as open, its runs fix K]: K above is then the start, and
+    # between rounds a redundant specialist is merged, a territory its specialist serves unevenly is split
+    # (section 7b below; study: docs/ges_adaptive).
+    adaptive: bool = False            # False: the paper's fixed K
+    K_min: int = 1                    # bounds of the adaptive K
+    K_max: int = 8
+    n_check: int = 16                 # designs drawn from each territory, scored by every specialist, per round
+    merge_tol: float = 0.05           # merge j if a neighbour scores j's checks within this share of the scale
+    split_gap: float = 0.25           # challenge k if its checks' two 2-means halves differ by this share
+    split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split
 
     def __post_init__(self):
         def need(name, ok, allowed):
@@ -175,13 +186,27 @@ class GESConfig:
         need("var_floor", self.var_floor > 0, "> 0")
         need("init", self.init in INIT_METHODS, f"one of {INIT_METHODS}")
         need("router", self.router in ROUTERS, f"one of {ROUTERS}")
+        need("adaptive", isinstance(self.adaptive, (bool, np.bool_)), "True or False")
+        for name in ("K_min", "K_max", "n_check"):
+            need(name, isinstance(getattr(self, name), (int, np.integer)) and getattr(self, name) >= 1,
+                 "an integer >= 1")
+        need("K_max", self.K_max >= self.K_min, f"an integer >= K_min={self.K_min}")
+        need("n_check", self.n_check >= 2, "an integer >= 2 (the split test halves a territory's checks)")
+        need("merge_tol", 0 <= self.merge_tol < 1, "in [0, 1)")
+        need("split_gap", 0 < self.split_gap < 1, "in (0, 1)")
+        need("split_cooldown", isinstance(self.split_cooldown, (int, np.integer)) and self.split_cooldown >= 0,
+             "an integer >= 0")
+        if self.adaptive:
+            need("K", self.K_min <= self.K <= self.K_max, f"in [K_min, K_max] = [{self.K_min}, {self.K_max}] "
+                 "(adaptive K starts there)")
+            need("fps_pool", self.fps_pool >= self.K_max, f"an integer >= K_max={self.K_max}")
 
 
 # ---------------------------------------------------------------------------------------------------------
 # Randomness: every draw comes from a generator derived from (seed, stream, round, k), so results do not
 # depend on the order in which specialists run [ours].
 # ---------------------------------------------------------------------------------------------------------
-INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE = range(5)  # stream ids
+INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE, CHECK = range(6)  # stream ids
 
 
 def rng_for(seed: int, *keys: int) -> np.random.Generator:
@@ -420,6 +445,9 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
     zeros = [0] * config.K
     state["history"] = [_history_entry(space, state, coverage(mu, sigma, points, config.tau), zeros,
                                        np.zeros((0, space.d)), [])]
+    if config.adaptive:   # a specialist's id names it while others come and go (section 7b)
+        state.update(ids=list(range(config.K)), wait={}, next_id=config.K)
+        state["history"][0].update(ids_trained=list(range(config.K)), ids=list(range(config.K)), events=[])
     return state
 
 
@@ -442,8 +470,9 @@ def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> dict 
     if not os.path.exists(os.path.join(run_dir, STATE_FILE)):
         return None
     state = _read_state(run_dir)
-    for what, saved, now in (("space", Box.from_dict(state["space"]).to_dict(), space.to_dict()), ("config", state["config"],
-                             asdict(config)), ("seed", state["seed"], seed)):
+    for what, saved, now in (("space", Box.from_dict(state["space"]).to_dict(), space.to_dict()),
+                             ("config", asdict(GESConfig(**state["config"])), asdict(config)),   # older: defaults
+                             ("seed", state["seed"], seed)):
         if saved != now:
             raise ValueError(f"run_dir={run_dir!r} holds a run with a different {what} ({saved} vs {now}); "
                              f"resume with the same settings or use a new run_dir")
@@ -472,6 +501,7 @@ class GESResult:
     rounds: int
     coverage: float
     task_seconds: float = 0.0   # every train and probe task's own seconds, summed: GES's compute (core-s)
+    ids: list = field(default_factory=list)   # each specialist's id (section 7b; 0..K-1 with a fixed K)
 
     def route(self, theta) -> np.ndarray:
         """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
@@ -484,7 +514,8 @@ def _result(run_dir, space, config, seed, state) -> GESResult:
                      [os.path.join(run_dir, c) if c else None for c in state["ckpt"]],
                      _history_doc(space, config, seed, state["history"]), state["round"],
                      state["history"][-1]["coverage"],
-                     float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.get("task_seconds", []))))
+                     float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.get("task_seconds", []))),
+                     list(state.get("ids", range(len(mu)))))
 
 
 def load_result(run_dir: str) -> GESResult:
@@ -498,41 +529,157 @@ def load_result(run_dir: str) -> GESResult:
 # 7. The GES loop [paper, Alg. 1]
 # ---------------------------------------------------------------------------------------------------------
 def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points) -> dict:
-    """One Train-Probe-Refit round (Alg. 1 lines 7-19). Returns the new state; `state` is not modified."""
-    t, K = state["round"], config.K
+    """One Train-Probe-Refit round (Alg. 1 lines 7-19), then, with config.adaptive, the merges and splits of
+    section 7b. Returns the new state; `state` is not modified. A specialist is named by its id (its index in
+    a fixed-K run): its seeds and checkpoint files follow it when others are merged away."""
+    t, K = state["round"], len(state["mu"])
+    ids = state.get("ids", list(range(K)))
     mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
-    ckpt_out = [os.path.join(CKPT_DIR, f"spec{k}_round{t:02d}.ckpt") for k in range(K)]
+    ckpt_out = [os.path.join(CKPT_DIR, f"spec{i}_round{t:02d}.ckpt") for i in ids]
     # Train (Alg. 1 lines 8-11): each specialist on its own territory, warm-started [paper].
-    samplers = [GaussianSampler(mu[k], sigma[k], space, seed_for(seed, TRAIN, t, k)) for k in range(K)]
-    _, train_s = _map_all(executor, train_fn, [(k, t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
+    samplers = [GaussianSampler(mu[k], sigma[k], space, seed_for(seed, TRAIN, t, ids[k])) for k in range(K)]
+    _, train_s = _map_all(executor, train_fn, [(ids[k], t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
                                                 if state["ckpt"][k] else None, os.path.join(run_dir, ckpt_out[k]))
                                                for k in range(K)])
     for k in range(K):
         if not os.path.exists(os.path.join(run_dir, ckpt_out[k])):
-            raise RuntimeError(f"train_fn did not write ckpt_out for specialist {k} in round {t}")
-    # Probe (Alg. 1 lines 12-16, eq. 6): every specialist scores every border candidate.
+            raise RuntimeError(f"train_fn did not write ckpt_out for specialist {ids[k]} in round {t}")
+    # Probe (Alg. 1 lines 12-16, eq. 6): every specialist scores every border candidate (and, adaptive, every
+    # territory's checks: one score call per specialist either way).
     probes = sample_probes(mu, sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
                            (config.band_lo, config.band_hi))
-    designs = space.from_unit(probes)
-    scores, probe_s = _map_all(executor, score_fn, [(k, os.path.join(run_dir, ckpt_out[k]), designs)
+    checks = (np.stack([sample_clipped(mu[k], sigma[k], rng_for(seed, CHECK, t, ids[k]), config.n_check)
+                        for k in range(K)]) if config.adaptive else np.zeros((K, 0, space.d)))
+    designs = space.from_unit(np.vstack([probes, checks.reshape(-1, space.d)]))
+    scores, probe_s = _map_all(executor, score_fn, [(ids[k], os.path.join(run_dir, ckpt_out[k]), designs)
                                                     for k in range(K)])
     scores = np.stack([np.asarray(s, dtype=float).reshape(-1) for s in scores])
-    if scores.shape != (K, len(probes)) or np.isnan(scores).any():
-        raise ValueError(f"score_fn must return {len(probes)} non-NaN scores per specialist, got shape "
+    if scores.shape != (K, len(designs)) or np.isnan(scores).any():
+        raise ValueError(f"score_fn must return {len(designs)} non-NaN scores per specialist, got shape "
                          f"{scores.shape} with {int(np.isnan(scores).sum())} NaN")
+    scores, check_scores = scores[:, :len(probes)], scores[:, len(probes):].reshape(K, K, config.n_check)
     winner = np.argmax(scores, axis=0)  # ties -> lower index [facts]
     # Refit (Alg. 1 line 17, eq. 7) each territory to all the designs it holds.
     eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
-    fits = [refit(e, config.var_floor) for e in eta]
+    wins = np.bincount(winner, minlength=K)
+    terr = {"ids": list(ids), "eta": eta, "ckpt": list(ckpt_out), "wait": dict(state.get("wait", {})),
+            "next_id": state.get("next_id", K), "events": []}
+    done = t + 1 >= config.max_rounds
+    if config.adaptive:
+        terr = merge(terr, check_scores, config, t + 1)
+    fits = [refit(e, config.var_floor) for e in terr["eta"]]
     mu, sigma = np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
     cov = coverage(mu, sigma, points, config.tau)  # Alg. 1 line 18, eq. 9
-    new = {"round": t + 1, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in eta],
-           "ckpt": ckpt_out, "done": bool(cov >= config.target_coverage or t + 1 >= config.max_rounds)}
-    wins = np.bincount(winner, minlength=K)
-    new["history"] = state["history"] + [_history_entry(space, new, cov, wins, probes, winner)]
+    done = bool(done or cov >= config.target_coverage)
+    if config.adaptive and not done:   # a challenger is born only when a round will train it
+        kept = [ids.index(i) for i in terr["ids"]]
+        terr = split(terr, checks[kept], check_scores[np.ix_(kept, kept)], config, t + 1, space.d)
+        fits = [refit(e, config.var_floor) for e in terr["eta"]]
+        mu, sigma = np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
+        cov = coverage(mu, sigma, points, config.tau)
+    new = {"round": t + 1, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in terr["eta"]],
+           "ckpt": terr["ckpt"], "done": done}
+    if config.adaptive:
+        new.update(ids=terr["ids"], wait=terr["wait"], next_id=terr["next_id"])
+    entry = _history_entry(space, new, cov, wins, probes, winner)
+    if config.adaptive:
+        entry.update(ids_trained=list(ids), ids=terr["ids"], events=terr["events"])
+    new["history"] = state["history"] + [entry]
     # what the round's tasks cost, kept beside (not in) the history, which depends on nothing but the seed
     new["task_seconds"] = state.get("task_seconds", []) + [{"train": train_s, "probe": probe_s}]
     return new
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 7b. Adaptive K [ours]: the paper's first open direction (Sec. VI), an option beside its fixed K
+# ---------------------------------------------------------------------------------------------------------
+# Each round every specialist also scores n_check designs drawn from every territory ("checks"): S[i, j] holds
+# specialist i's scores on territory j's checks. Scores are compared in units of the round's scale, the mean
+# over territories of the owner's mean score on its own checks, so the tolerances mean the same for a J in cm
+# and a planted quality in [0, 1] (scores >= 0 assumed, as both are).
+def score_scale(S: np.ndarray) -> float:
+    own = np.abs(np.array([S[j, j].mean() for j in range(len(S))]))
+    return max(float(own.mean()), 1e-12)
+
+
+def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int) -> dict:
+    """Retire each specialist whose territory another serves as well [ours]: j goes when the best other
+    specialist's mean score on j's checks is within merge_tol x scale of j's own (the test of X-means'
+    and G-means' merge-back, Pelleg & Moore 2000, Hamerly & Elkan 2003, made on scores instead of likelihoods:
+    what counts is how well a design is served, not where it lies). The absorber takes j's designs and keeps
+    its checkpoint. Smallest gaps first; a specialist absorbed or absorbing this round is not merged again,
+    and K stays >= K_min. Winning no probes is not enough: a contested border says nothing of the interior."""
+    K, scale = len(S), score_scale(S)
+    cands = []
+    for j in range(K):
+        others = [i for i in range(K) if i != j]
+        if others:
+            m = np.array([S[i, j].mean() for i in others])
+            cands.append(((S[j, j].mean() - m.max()) / scale, j, others[int(np.argmax(m))]))
+    gone, absorbers, events = set(), set(), list(terr["events"])
+    eta = list(terr["eta"])
+    for gap, j, i in sorted(cands, key=lambda c: (c[0], -c[1])):   # ties: the younger goes
+        if gap > config.merge_tol or K - len(gone) <= config.K_min:
+            break
+        if j in gone or j in absorbers or i in gone:
+            continue
+        eta[i] = np.vstack([eta[i], eta[j]])
+        gone.add(j)
+        absorbers.add(i)
+        events.append({"kind": "merge", "id": terr["ids"][j], "into": terr["ids"][i], "gap": float(gap),
+                       "reason": f"specialist {terr['ids'][i]} scores its checks within {gap:+.1%} of the scale"})
+    wait = dict(terr["wait"], **{str(terr["ids"][i]): r + 1 + config.split_cooldown for i in absorbers})
+    keep = [k for k in range(K) if k not in gone]
+    return dict(terr, ids=[terr["ids"][k] for k in keep], eta=[eta[k] for k in keep],
+                ckpt=[terr["ckpt"][k] for k in keep], wait=wait, events=events)
+
+
+def two_means(x: np.ndarray, iters: int = 10) -> np.ndarray:
+    """Labels 0/1 of a 2-means (Lloyd) split of x, started from the two points at the ends of its widest axis:
+    deterministic, no draw."""
+    a = int(np.argmax(x.var(axis=0)))
+    c = lloyd(np.stack([x[np.argmin(x[:, a])], x[np.argmax(x[:, a])]]), x, iters)
+    return np.argmin(((x[:, None, :] - c[None]) ** 2).sum(-1), axis=1)
+
+
+def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: int, d: int) -> dict:
+    """Challenge each territory its specialist serves unevenly [ours]: 2-means its checks (G-means' split,
+    Hamerly & Elkan 2003); if the specialist's mean score on the two halves differs by more than split_gap x
+    scale, the lower half becomes a challenger's territory, started from the parent's checkpoint (it only has
+    to diverge where its half differs). Scores alone cannot tell a design the wrong behaviour serves from one
+    that is hard for every behaviour; the challenger's next round can: if it learns nothing its parent does
+    not know, the merge test retires it. The parent keeps the upper half (its designs and checks, split by
+    2-means label). At most one split per territory and round, K <= K_max; a territory waits a round after a
+    split, split_cooldown rounds after absorbing one (so a refuted challenger is not reborn every round)."""
+    scale, out = score_scale(S), dict(terr, ids=list(terr["ids"]), eta=list(terr["eta"]), ckpt=list(terr["ckpt"]),
+                                      wait=dict(terr["wait"]), events=list(terr["events"]))
+    for k in range(len(S)):
+        pid = terr["ids"][k]
+        if len(out["ids"]) >= config.K_max or out["wait"].get(str(pid), 0) > r:
+            continue
+        lab = two_means(checks[k])
+        if min(np.sum(lab == 0), np.sum(lab == 1)) < 2:
+            continue
+        m = np.array([S[k, k][lab == g].mean() for g in (0, 1)])
+        gap, lo = (m.max() - m.min()) / scale, int(np.argmin(m))
+        if gap <= config.split_gap:
+            continue
+        held = np.vstack([np.asarray(terr["eta"][k]).reshape(-1, d), checks[k]])
+        centre = [checks[k][lab == g].mean(axis=0) for g in (0, 1)]
+        side = np.argmin(np.stack([((held - c) ** 2).sum(1) for c in centre]), axis=0)
+        if min(np.sum(side == 0), np.sum(side == 1)) < 2:
+            continue
+        cid = out["next_id"]
+        out["eta"][k] = held[side != lo]
+        out["ids"].append(cid)
+        out["eta"].append(held[side == lo])
+        out["ckpt"].append(terr["ckpt"][k])
+        out["wait"].update({str(pid): r + 2, str(cid): r + 2})
+        out["next_id"] = cid + 1
+        out["events"].append({"kind": "split", "id": pid, "child": cid, "gap": float(gap),
+                              "reason": f"its checks' halves score {m.max():.3g} and {m.min():.3g}: "
+                                        f"{gap:.1%} of the scale apart"})
+    return out
 
 
 def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
@@ -565,8 +712,9 @@ def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
             state = ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points)
             _save_state(run_dir, space, config, seed, state)
             h = state["history"][-1]
+            adapt = "".join(f"  {e['kind']} {e['id']}->{e.get('into', e.get('child'))}" for e in h.get("events", []))
             say(f"round {h['round']:2d}/{config.max_rounds}  coverage {h['coverage']:6.1%}  wins {h['wins']}  "
-                f"elapsed {time.time() - start:7.1f}s")
+                + (f"K {len(h['mu'])}{adapt}  " if config.adaptive else "") + f"elapsed {time.time() - start:7.1f}s")
     finally:
         if own:
             executor.shutdown()
@@ -588,16 +736,18 @@ class RoutedEvaluator:
         if any(c is None for c in result.ckpt):
             raise ValueError(f"result has no trained checkpoints yet (rounds={result.rounds}); run GES first")
         self.result, self.score_fn, self.router = result, score_fn, router
+        self.ids = list(result.ids) or list(range(len(result.ckpt)))   # a GESResult built by hand may not name them
 
     def __call__(self, theta):
         x = self.result.space.validate(theta)
         r = self.result
         if self.router == "oracle":
-            out = np.max([np.asarray(self.score_fn(k, r.ckpt[k], x), float) for k in range(len(r.ckpt))], axis=0)
+            out = np.max([np.asarray(self.score_fn(self.ids[k], r.ckpt[k], x), float) for k in range(len(r.ckpt))],
+                         axis=0)
         else:
             ks, out = r.route(x), np.empty(len(x))
             for k in np.unique(ks):
-                out[ks == k] = np.asarray(self.score_fn(int(k), r.ckpt[k], x[ks == k]), float)
+                out[ks == k] = np.asarray(self.score_fn(self.ids[k], r.ckpt[k], x[ks == k]), float)
         return float(out[0]) if np.ndim(theta) == 1 else out
 
 
@@ -628,9 +778,11 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
     lo, hi, d = space.lo, space.hi, space.d
     pairs = [(0, 1)] if d == 2 else [(i, j) for i in range(d) for j in range(i + 1, d)]
     snaps = _snapshots(len(rounds))
+    ids_of = lambda h: h.get("ids", list(range(len(h["mu"]))))          # noqa: E731  (section 7b)
+    trained_of = lambda h: h.get("ids_trained", ids_of(h))              # noqa: E731  the winners' index space
     fig = Figure(figsize=(3.3 * (len(snaps) + 1), 3.1 * len(pairs) + 0.4), layout="constrained")
     axes = fig.subplots(len(pairs), len(snaps) + 1, squeeze=False)
-    K = len(rounds[0]["mu"])
+    K0, K1 = len(rounds[0]["mu"]), len(rounds[-1]["mu"])
     for r_i, (i, j) in enumerate(pairs):
         for c_i, s in enumerate(snaps):
             ax, h = axes[r_i, c_i], rounds[s]
@@ -643,17 +795,20 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
                 ax.contourf(px, py, lab, levels=levels, cmap="Greys", vmin=-1, vmax=3 * lab.max() + 3)
                 ax.contour(px, py, lab, levels=levels[1:-1], colors="k", linewidths=0.8, linestyles="--")
             probes = space.from_unit(np.array(h["probes_unit"]).reshape(-1, d))
-            for k in range(K):
-                col = COLORS[k % len(COLORS)]
+            for k, sid in enumerate(ids_of(h)):   # colour by id: a specialist keeps its colour through merges
+                col = COLORS[sid % len(COLORS)]
                 mu, sg = np.array(h["mu"][k]), np.array(h["sigma"][k])
                 ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc=col, ec=col, alpha=0.18, lw=0))
                 ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc="none", ec=col, lw=1.6))
-                trail = np.array([rounds[t]["mu"][k] for t in range(s + 1)])
+                trail = np.array([rounds[t]["mu"][ids_of(rounds[t]).index(sid)] for t in range(s + 1)
+                                  if sid in ids_of(rounds[t])])
                 ax.plot(trail[:, i], trail[:, j], "-", color=col, lw=0.8, alpha=0.7)
                 ax.plot(mu[i], mu[j], "o", color=col, mec="k", ms=6)
+            for k, sid in enumerate(trained_of(h)):
                 won = np.array(h["winner"]) == k
                 if won.any():   # black-edged, above the ellipses: a probe is one point, it must stand out
-                    ax.plot(probes[won, i], probes[won, j], "D", color=col, ms=4.5, mec="k", mew=0.6, zorder=4)
+                    ax.plot(probes[won, i], probes[won, j], "D", color=COLORS[sid % len(COLORS)], ms=4.5, mec="k",
+                            mew=0.6, zorder=4)
             ax.set_xlim(lo[i], hi[i])
             ax.set_ylim(lo[j], hi[j])
             ax.set_xlabel(space.names[i])
@@ -666,24 +821,41 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
     t = [h["round"] for h in rounds]
     ax.plot(t, [100 * h["coverage"] for h in rounds], "k.-", label="MC coverage", zorder=3)   # above the bars
     ax.axhline(100 * history["config"]["target_coverage"], color="gray", ls="--", lw=1, label="target")
-    wins = np.array([h["wins"] for h in rounds])
+    every = sorted({sid for h in rounds for sid in trained_of(h)} | set(ids_of(rounds[0])))
+    wins = np.array([[dict(zip(trained_of(h), h["wins"])).get(sid, 0) for sid in every] for h in rounds])
     bottom = np.zeros(len(t))
-    for k in range(K):
-        share = 100 * wins[:, k] / np.maximum(wins.sum(1), 1)
-        ax.bar(t, share, bottom=bottom, color=COLORS[k % len(COLORS)], alpha=0.35, width=0.8,
-               label=f"specialist {k} wins")
+    for c, sid in enumerate(every):
+        share = 100 * wins[:, c] / np.maximum(wins.sum(1), 1)
+        ax.bar(t, share, bottom=bottom, color=COLORS[sid % len(COLORS)], alpha=0.35, width=0.8,
+               label=f"specialist {sid} wins")
         bottom += share
+    if any("events" in h for h in rounds):   # adaptive K: K per round, splits and merges marked
+        ax2 = ax.twinx()
+        ks = [len(h["mu"]) for h in rounds]
+        ax2.plot(t, ks, "-", color="purple", lw=1.2, label="K (right axis)")
+        for kind, mark in (("split", "^"), ("merge", "v")):
+            at = [(h["round"], len(h["mu"])) for h in rounds for e in h.get("events", []) if e["kind"] == kind]
+            if at:
+                ax2.plot(*zip(*at), mark, color="purple", ms=7, ls="none", label=f"{kind} (right axis)")
+        ax2.set_ylim(0, max(ks) + 1)
+        ax2.set_ylabel("K")
+        h2, l2 = ax2.get_legend_handles_labels()
+    else:
+        h2, l2 = [], []
     ax.set_ylim(0, 105)
     ax.set_xticks(t)
     ax.set_xlabel("round")
     ax.set_ylabel("coverage %  /  share of probes won")
     ax.set_title("coverage and wins per round", fontsize=10)
     handles, labels = ax.get_legend_handles_labels()
+    handles, labels = handles + h2, labels + l2
     if len(pairs) > 1:  # 3-D: the legend gets its own (otherwise empty) cell
         axes[1, -1].legend(handles, labels, loc="center", fontsize=9)
     else:   # 2-D: below the panel, where it covers neither the coverage line nor the bars
         ax.legend(handles, labels, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
-    fig.suptitle(f"GES territories (2-sigma ellipses, diamonds: probes won this round), K={K}, d={d}"
+    fig.suptitle(f"GES territories (2-sigma ellipses, diamonds: probes won this round), "
+                 + (f"K={K0}" if K0 == K1 and "events" not in rounds[-1] else f"adaptive K: {K0} -> {K1}")
+                 + f", d={d}"
                  + ("; grey/dashed: planted regions" if background is not None and d == 2 else ""))
     fig.savefig(path, dpi=110)
     return path
@@ -698,13 +870,18 @@ class PlantedLandscape:
     exp(-|x - site_b|^2 / (2 width^2)), so the best behaviour's regions are the sites' Voronoi cells.
     A specialist is a logit vector p over behaviours; its score on x is sum_b softmax(p)_b q_b(x). train()
     really improves it: gradient ascent on the mean score over designs drawn from its territory, i.e. toward
-    the behaviour best on the designs it is given. Checkpoints are small JSON files. Picklable."""
+    the behaviour best on the designs it is given. Checkpoints are small JSON files. Picklable.
+    `cap` bounds the logits: an unbounded softmax saturates (after a few rounds a specialist's other behaviours
+    weigh e^-6 and it can no longer re-learn), which a PPO policy fine-tuned on new designs does not; adaptive
+    K's challengers start from their parent and must be able to diverge, so its landscapes cap at 2 (the best
+    behaviour then weighs >= 0.98 of the mixture) [ours]."""
     space: Box
     sites: np.ndarray
     width: float = 0.3
     n_designs: int = 64
     steps: int = 25
     lr: float = 5.0
+    cap: float | None = None
 
     def quality(self, x_unit: np.ndarray) -> np.ndarray:
         d2 = ((np.atleast_2d(x_unit)[:, None, :] - np.asarray(self.sites)[None]) ** 2).sum(-1)
@@ -726,6 +903,7 @@ class PlantedLandscape:
             pi = np.exp(p - p.max())
             pi /= pi.sum()
             p = p + self.lr * pi * (qbar - pi @ qbar)  # d/dp of sum_b softmax(p)_b qbar_b
+            p = p if self.cap is None else np.clip(p, -self.cap, self.cap)
         _atomic_json(ckpt_out, {"p": p.tolist(), "k": k, "round": round})
 
     def score(self, k, ckpt, designs):
@@ -735,6 +913,54 @@ class PlantedLandscape:
 
 
 DEMO_SITES_2D = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])
+SITES = 1000   # stream id of planted sites (apart from GES's own streams)
+
+
+def planted_sites(B: int, dim: int, seed: int) -> np.ndarray:
+    """B sites in [0.1, 0.9]^dim drawn from the seed, each at least 0.7 x (0.8^dim / B)^(1/dim) from the
+    others (70 % of the spacing of B evenly spread sites), so that every site is its own behaviour's region
+    and not a copy of a neighbour's [ours]."""
+    if not (isinstance(B, (int, np.integer)) and B >= 1):
+        raise ValueError(f"sites={B!r} not allowed: an integer >= 1")
+    rng, sep = rng_for(seed, SITES), 0.7 * (0.8 ** dim / B) ** (1.0 / dim)
+    for _ in range(1000):   # restart when the sites drawn so far leave no room
+        sites = []
+        for _ in range(200 * B):
+            x = rng.uniform(0.1, 0.9, dim)
+            if all(np.linalg.norm(x - y) >= sep for y in sites):
+                sites.append(x)
+                if len(sites) == B:
+                    return np.array(sites)
+    raise RuntimeError(f"no {B} sites {sep:.2f} apart found in [0.1, 0.9]^{dim}")
+
+
+def planted(B: int, dim: int, seed: int) -> PlantedLandscape:
+    """Adaptive K's test landscape: B planted sites (planted_sites), width 0.2, logits capped at 2 [ours]."""
+    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
+    return PlantedLandscape(space, planted_sites(B, dim, seed), width=0.2, cap=2.0)
+
+
+def routed_mean(res: GESResult, land: PlantedLandscape, n: int = 2000, seed: int = 0) -> float:
+    """Mean score of n uniform test designs, each scored by the specialist the density router picks (eq. 10)."""
+    designs = res.space.sample_uniform(rng_for(seed, SITES, 1), n)
+    return float(np.mean(routed_evaluator(res, land.score, "density")(designs)))
+
+
+def demo_adaptive(out_dir: str, K: str | int = "auto", B: int = 3, dim: int = 2, seed: int = 0,
+                  workers: int = 1, max_rounds: int = 20) -> tuple:
+    """GES on planted(B, dim, seed) with adaptive K (K = "auto", starting at the paper's K = 3) or a fixed K;
+    writes out_dir/territories.png. Returns (result, mean score of routed_mean)."""
+    land = planted(B, dim, seed)
+    if K == "auto":
+        cfg = GESConfig(K=3, adaptive=True, max_rounds=max_rounds)
+    else:
+        cfg = GESConfig(K=int(K), max_rounds=max_rounds)
+    ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
+    with ex:
+        res = run_ges(land.space, land.train, land.score, out_dir, cfg, seed, ex, progress=None)
+    plot_territories(res.history, os.path.join(out_dir, "territories.png"),
+                     background=land.region if dim == 2 else None)
+    return res, routed_mean(res, land, seed=seed)
 
 
 def demo(out_dir: str, dim: int = 2, seed: int = 0, workers: int = 1) -> GESResult:
@@ -816,6 +1042,9 @@ def main(argv=None) -> int:
     ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
     ap.add_argument("--seed", type=int, default=0, help="demo: an integer >= 0")
     ap.add_argument("--workers", type=int, default=1, help="demo: processes, >= 1 (>1 uses a ProcessPoolExecutor)")
+    ap.add_argument("--K", help="demo on a landscape of --sites sites: 'auto' (adaptive K, section 7b, starting at "
+                    "3) or a fixed K >= 1")
+    ap.add_argument("--sites", type=int, help="demo: planted sites B >= 1 drawn from --seed (default 3 with --K)")
     args = ap.parse_args(argv)
     made = None
     try:
@@ -823,6 +1052,12 @@ def main(argv=None) -> int:
             raise ValueError(f"--seed {args.seed} must be an integer >= 0")
         if args.workers < 1:
             raise ValueError(f"--workers {args.workers} must be an integer >= 1")
+        if args.K is not None and args.K != "auto" and not (args.K.isdigit() and int(args.K) >= 1):
+            raise ValueError(f"--K {args.K} must be 'auto' or an integer >= 1")
+        if args.sites is not None and args.sites < 1:
+            raise ValueError(f"--sites {args.sites} must be an integer >= 1")
+        if (args.K is not None or args.sites is not None) and args.demo is None:
+            raise ValueError("--K and --sites go with --demo OUT_DIR")
         if args.demo is not None:
             if not args.demo.strip():
                 raise ValueError("--demo needs a folder name")
@@ -838,8 +1073,17 @@ def main(argv=None) -> int:
                 raise OSError(f"--demo {args.demo}: cannot write there ({e.strerror or e})") from None
         if args.bench:
             bench()
-        if args.demo is not None:
+        if args.demo is not None and args.K is None and args.sites is None:
             demo(args.demo, args.dim, args.seed, args.workers)
+        elif args.demo is not None:
+            res, m = demo_adaptive(args.demo, args.K or "auto", args.sites or 3, args.dim, args.seed, args.workers)
+            for h in res.history["rounds"][1:]:
+                events = "; ".join(f"{e['kind']} {e['id']}->{e.get('into', e.get('child'))}: {e['reason']}"
+                                   for e in h.get("events", []))
+                print(f"round {h['round']:2d}: K {len(h['mu'])}, coverage {h['coverage']:.1%}"
+                      + (f"  ({events})" if events else ""))
+            print(f"wrote {os.path.join(args.demo, 'territories.png')}")
+            print(f"final K = {len(res.ckpt)}, coverage = {100 * res.coverage:.1f} %, mean score = {m:.4f}")
         if args.sweep:
             sweep()
         if not (args.bench or args.demo is not None or args.sweep):

@@ -316,12 +316,19 @@ class Preset:
     # [facts] round 0's steps per specialist (None: ges_round_steps): the authors' first GES round trains 1,600
     # updates, each later one 500 (~3.2x); a run that reaches its coverage after one round keeps round 0's steps
     ges_first_round_steps: int | None = None
+    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 7b), starting at K_d2, K <= K_d3: REPORT.md's
+    # K-sensitivity table gains an "auto" row; each round scores ges_n_check() designs of every territory
+    ksens_auto: bool = False
 
     def ges_steps(self, rounds: int) -> int:
         """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted): round 0's
         budget, then ges_round_steps per round. The one home of a specialist's step budget."""
         first = self.ges_round_steps if self.ges_first_round_steps is None else self.ges_first_round_steps
         return first + (rounds - 1) * self.ges_round_steps if rounds > 0 else 0
+
+    def ges_n_check(self) -> int:
+        """Adaptive K's checks per territory and round: as many as the probes (>= 2, the split halves them)."""
+        return max(2, self.ges_probes)
 
 
 # [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
@@ -337,7 +344,7 @@ BISECTION = (16, 8, 4, 2, 1, 1, 1)
 SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollout=16, score_episodes=1,
                n_test=3, tpe_trials=3, tpe_startup=2, ges_max_rounds=2, ges_probes=2, ges_probe_pool=50,
                ges_init_designs=8, ges_n_mc=2000, ges_fps_pool=500, ksens_K=(1, 3), cost_trials=2,
-               score_start_level=2, probe_level_steps=(2,), peak_episodes=2)
+               score_start_level=2, probe_level_steps=(2,), peak_episodes=2, ksens_auto=True)
 
 # quick: every table and figure in ~2-3 h on 2 cores (`--plan`: 2.79 h at the calibration in docs/quick, which
 # took 2.73 h): 380k PPO steps per policy (the e2e MLP's level climbs steeply to there: docs/ppo_protocol);
@@ -477,8 +484,8 @@ def stage_baselines(run: Run) -> dict:
 
 
 # --- GES ----------------------------------------------------------------------------------------------------
-def ges_name(task: str, sp: str, K: int, init: str) -> str:
-    return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"
+def ges_name(task: str, sp: str, K: int | str, init: str) -> str:
+    return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"   # K "auto": adaptive K (Preset.ksens_auto)
 
 
 def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: threading.Event | None = None) -> dict:
@@ -487,9 +494,11 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
     p = run.preset
     name, space = ges_name(task, sp, K, init), space_of(p, task, sp)
     run_dir = run.path("ges", name)
-    config = ges.GESConfig(K=K, n_probe=p.ges_probes, probe_pool=p.ges_probe_pool,
+    adaptive = dict(K=p.K_d2, adaptive=True, K_max=max(p.K_d2, p.K_d3), n_check=p.ges_n_check()) \
+        if K == "auto" else dict(K=K)
+    config = ges.GESConfig(n_probe=p.ges_probes, probe_pool=p.ges_probe_pool,
                            n_init_designs=p.ges_init_designs, n_mc=p.ges_n_mc, max_rounds=p.ges_max_rounds,
-                           fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage)
+                           fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage, **adaptive)
     os.makedirs(run_dir, exist_ok=True)
     times_path = os.path.join(run_dir, "round_seconds.json")
     times = redo_if_damaged(times_path, part="counting its round times from now on") or {}
@@ -514,7 +523,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
     trainer = TrainSpecialist(task, space, p.ges_round_steps, p, warm, p.ges_first_round_steps, label=name)
     res = ges.run_ges(space, trainer, ScoreSpecialist(task, space, p, probe=True), run_dir, config,
                       derive_seed(run.seed, "ges"), executor, progress=on_round)
-    return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "init": init, "warm_start": warm,
+    return {"run_dir": os.path.relpath(run_dir, run.out), "K": K, "final_K": len(res.ckpt), "init": init,
+            "warm_start": warm,
             "rounds": res.rounds, "coverage": res.coverage, "stage1_seconds": float(sum(times.values())),
             "stage1_core_s": ges_core_seconds(run_dir),
             "mu": res.mu.tolist(), "sigma": res.sigma.tolist(), "names": list(space.names)}
@@ -734,13 +744,15 @@ def stage_table3(run: Run) -> dict:
 
 
 def stage_ksens(run: Run) -> dict:
-    """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run."""
-    specs = [("obstacle", "d2", K, "fps+lloyd") for K in run.preset.ksens_K]
+    """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run. With
+    ksens_auto also adaptive K (key "auto", its final K beside it)."""
+    Ks = list(run.preset.ksens_K) + ["auto"] * run.preset.ksens_auto
+    specs = [("obstacle", "d2", K, "fps+lloyd") for K in Ks]
     runs = ges_runs(run, specs, "K-sensitivity GES runs")
     names = [ges_name(*sp) for sp in specs]
     scores = ges_test_scores(run, names, "K-sensitivity score sets")
-    return {str(K): dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"])
-            for K, n in zip(run.preset.ksens_K, names)}
+    return {str(K): dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"],
+                         **({"final_K": runs[n]["final_K"]} if K == "auto" else {})) for K, n in zip(Ks, names)}
 
 
 # --- computational cost -------------------------------------------------------------------------------------

@@ -1914,7 +1914,11 @@ def test_ges_damaged_state_names_the_file_and_what_to_do(synthetic_run, tmp_path
     (["--demo", "OUT", "--workers", "0"], "--workers 0 must be an integer >= 1"),
     (["--demo", "OUT", "--workers", "-2"], "--workers -2 must be an integer >= 1"),
     (["--demo", " "], "--demo needs a folder name"), (["--demo", "/proc/ges_demo_test"], "cannot write there"),
-    (["--demo", "FILE"], "exists and is not a folder")])
+    (["--demo", "FILE"], "exists and is not a folder"),
+    (["--demo", "OUT", "--K", "0"], "--K 0 must be 'auto' or an integer >= 1"),
+    (["--demo", "OUT", "--K", "many"], "--K many must be 'auto' or an integer >= 1"),
+    (["--demo", "OUT", "--sites", "0"], "--sites 0 must be an integer >= 1"),
+    (["--K", "auto"], "--K and --sites go with --demo OUT_DIR")])
 def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tmp_path, capsys):
     (tmp_path / "file").write_text("a file")
     out = str(tmp_path / "demo")
@@ -1922,6 +1926,95 @@ def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tm
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("ges.py: error: ") and msg in err, err
     assert not os.path.exists(out)
+
+
+# =========================================================================================================
+# ges: adaptive K (section 7b) on planted landscapes
+# =========================================================================================================
+def _adaptive(run_dir, B, K, seed=0, dim=2, train=None, **kw):
+    land = ges.planted(B, dim, seed)
+    return land, _run(run_dir, land, train=train, config=ges.GESConfig(K=K, adaptive=True, **kw), seed=seed)
+
+
+def _events(res, kind):
+    return [e for h in res.history["rounds"] for e in h.get("events", []) if e["kind"] == kind]
+
+
+def _region_owners(land, res):
+    """Per planted region, the behaviour (argmax logit) of the specialist the router hands most of it to."""
+    g = np.linspace(0, 1, 61)
+    x = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    region, owner = land.region(x), ges.route(x, res.mu_unit, res.sigma_unit)
+    return [int(np.argmax(land.policy(res.ckpt[int(np.argmax(np.bincount(owner[region == b])))])))
+            for b in range(len(land.sites))]
+
+
+def test_ges_adaptive_splits_a_one_specialist_start_on_two_sites(tmp_path):
+    land, res = _adaptive(tmp_path, B=2, K=1)
+    assert _events(res, "split") and len(res.ckpt) >= 2, [len(h["mu"]) for h in res.history["rounds"]]
+    assert _region_owners(land, res) == [0, 1]   # each site's region goes to a specialist of its behaviour
+    for h in res.history["rounds"][1:]:          # every round names who trained and who holds each territory
+        assert len(h["ids_trained"]) == len(h["wins"]) and len(h["ids"]) == len(h["mu"])
+    born = _events(res, "split")[0]
+    assert born["child"] == 1 and born["id"] == 0 and "apart" in born["reason"]
+
+
+def test_ges_adaptive_merges_a_three_specialist_start_on_one_site(tmp_path):
+    land, res = _adaptive(tmp_path, B=1, K=3)
+    merges = _events(res, "merge")
+    assert merges and len(res.ckpt) <= 2, [len(h["mu"]) for h in res.history["rounds"]]
+    assert all(e["gap"] <= ges.GESConfig.merge_tol for e in merges)
+    assert len(res.history["rounds"][1]["mu"]) < 3   # one behaviour: the first round already sees it
+
+
+def test_ges_adaptive_keeps_its_bounds_and_resumes_exactly(tmp_path):
+    def crash(k, r, *a):
+        if r == 3:
+            raise RuntimeError("simulated crash")
+        return land.train(k, r, *a)
+    land, ref = _adaptive(tmp_path / "ref", B=5, K=1, K_max=3)
+    assert max(len(h["mu"]) for h in ref.history["rounds"]) == 3 and _events(ref, "split")
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        _adaptive(tmp_path / "cut", B=5, K=1, K_max=3, train=crash)
+    _, resumed = _adaptive(tmp_path / "cut", B=5, K=1, K_max=3)
+    assert resumed.history == ref.history and resumed.ids == ref.ids
+    np.testing.assert_array_equal(resumed.mu_unit, ref.mu_unit)
+    assert [os.path.basename(c) for c in resumed.ckpt] == [os.path.basename(c) for c in ref.ckpt]
+    J = ges.routed_evaluator(resumed, land.score)    # the router hands a design to a specialist by its id
+    x = resumed.space.sample_uniform(ges.rng_for(3), 50)
+    k = resumed.route(x)
+    np.testing.assert_allclose(J(x), [land.score(resumed.ids[i], resumed.ckpt[i], x[j:j + 1])[0]
+                                      for j, i in enumerate(k)])
+    png = ges.plot_territories(resumed.history, str(tmp_path / "t.png"), background=land.region)
+    assert os.path.getsize(png) > 20_000
+
+
+def test_ges_adaptive_fixed_k_state_is_unchanged(synthetic_run):
+    """adaptive=False writes what the fixed-K loop always wrote: no ids, no events, specialists 0..K-1."""
+    state = read_json(os.path.join(synthetic_run.run_dir, "state.json"))
+    assert not {"ids", "wait", "next_id"} & set(state)
+    assert all("events" not in h and "ids" not in h for h in synthetic_run.history["rounds"])
+    assert synthetic_run.ids == [0, 1, 2]
+
+
+@pytest.mark.parametrize("kw, words", [
+    (dict(K=5, adaptive=True, K_max=4), "GESConfig.K=5 not allowed: in [K_min, K_max] = [1, 4]"),
+    (dict(K_min=3, K_max=2), "GESConfig.K_max=2 not allowed: an integer >= K_min=3"),
+    (dict(n_check=1), "GESConfig.n_check=1 not allowed"), (dict(split_gap=0.0), "GESConfig.split_gap=0.0"),
+    (dict(merge_tol=1.0), "GESConfig.merge_tol=1.0"), (dict(adaptive="yes"), "GESConfig.adaptive='yes'")])
+def test_ges_adaptive_bad_settings_name_the_parameter(kw, words):
+    with pytest.raises(ValueError, match=re.escape(words)):
+        ges.GESConfig(**kw)
+
+
+def test_ges_demo_adaptive_ends_with_k_coverage_and_score(tmp_path, capsys):
+    assert ges.main(["--demo", str(tmp_path / "d"), "--K", "auto", "--sites", "2", "--seed", "1"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    m = re.fullmatch(r"final K = (\d+), coverage = ([\d.]+) %, mean score = ([\d.]+)", last)
+    assert m and 1 <= int(m[1]) <= 8 and float(m[3]) > 0, last
+    assert os.path.getsize(tmp_path / "d" / "territories.png") > 20_000
+    assert ges.main(["--demo", str(tmp_path / "f"), "--K", "2", "--sites", "2", "--seed", "1"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].startswith("final K = 2, ")
 
 
 # ==========================================================================================================
@@ -2353,6 +2446,7 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
     assert re.search(r"PPO trained at \d+ control steps/s per job in this run \(\d+ training logs", rep)
     assert re.search(r"\| total \| \d+ s = [\d.]+ h \| \d+ s = [\d.]+ h \| [\d.]+ \|", rep)   # beside the plan
     assert "(36.9)" in rep and "(35.2)" in rep and "37 %" in rep          # paper numbers beside ours
+    assert re.search(r"\| auto \(ends at \d\) \|", rep)                         # adaptive K's row (ksens_auto)
     assert "nan" not in rep.lower() and " - (" not in rep                # every "ours" cell was measured
     res = read_json(os.path.join(smoke_run, "results.json"))
     assert set(res["stages"]) == set(run_all.STAGES) and all(v is not None for v in res["stages"].values())
@@ -2369,7 +2463,9 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
     assert all(len(row) == run_all.SMOKE.score_episodes for row in final_x)
     assert len({row[0] for row in final_x}) == len(final_x) == sum(len(s["scores"]) for s in sets)
     assert set(res["stages"]["table3"]) == set(run_all.SMOKE.table3_inits)
-    assert set(res["stages"]["ksens"]) == {str(k) for k in run_all.SMOKE.ksens_K}
+    assert set(res["stages"]["ksens"]) == {str(k) for k in run_all.SMOKE.ksens_K} | {"auto"}   # ksens_auto
+    auto = res["stages"]["ksens"]["auto"]
+    assert 1 <= auto["final_K"] <= run_all.SMOKE.K_d3 and len(auto["scores"]) == run_all.SMOKE.n_test
     cost = res["stages"]["cost"]
     assert cost["bo_s"] > 0 and cost["ges_s"] > 0 and np.isfinite(cost["reduction_pct"])
     assert 0.0 <= res["stages"]["figures"]["moe_gate_entropy"] <= 1.0 + 1e-9
@@ -3165,7 +3261,7 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     steps/s, scores playing 66 % of their steps (2 episodes each): every stage's seconds are its steps / 100."""
     p = replace(run_all.SMOKE, ppo_steps=100, ges_first_round_steps=30, ges_round_steps=10, ges_max_rounds=2,
                 score_episodes=2, peak_episodes=3, probe_level_steps=(2,), ges_probes=5, n_test=4, tpe_trials=6,
-                tpe_startup=2, cost_trials=3, table3_inits=("grid", "fps+lloyd"), ksens_K=(1, 3))
+                tpe_startup=2, cost_trials=3, table3_inits=("grid", "fps+lloyd"), ksens_K=(1, 3), ksens_auto=False)
     layout = plan.Layout(tasks=2, spaces=2, e2e=2, methods=4, searched=3, episode_steps=10)
     rows = plan.plan(p, layout, 1, train_rate=100.0, score_rate=66.0)
     steps = {k: (v["ppo_steps"], v["score_steps"], v["probe_steps"]) for k, v in rows.items()}
@@ -3181,6 +3277,10 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     seconds = {k: 3600 * v["hours"] for k, v in rows.items()}
     assert seconds == pytest.approx({"baselines": 10.0, "ges": 25.2, "table2": 31.2, "table3": 5.0, "ksens": 2.2,
                                      "cost": 3.6, "figures": 40.0})   # figures: FIGURES_S, a fixed cost
+    # adaptive K adds a run at its start K = 3: 3 x 40; 4 x 20; probes 3 x 5 x 10 x 2 and its checks, every one
+    # of 3 specialists scoring 5 (= F) of each of 3 territories' designs, 10 steps, 2 rounds: 900
+    auto = plan.plan(replace(p, ksens_auto=True), layout, 1, train_rate=100.0, score_rate=66.0)["ksens"]
+    assert (auto["ppo_steps"], auto["score_steps"], auto["probe_steps"]) == (160, 160, 1300)
     two = plan.plan(p, layout, 2, train_rate=100.0, score_rate=66.0)
     # table3's 3 specialists on 2 cores: a wave of 2, then 1 alone at 2 / 1.68 the per-core rate: 2 + 1.68 core
     # turns for 3 jobs' work, 0.68 of a 40-step specialist idle; its one score set alone, 1.68 - 1 idle

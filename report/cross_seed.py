@@ -98,7 +98,7 @@ def claims_table(runs: list, labels: list) -> list:
 def ksens_table(runs: list, labels: list) -> list:
     """Fig. 7 per run: mean J [95 % CI] of each K, the e2e MLP beside them (obstacle D2, cm)."""
     ks_all = [run["stages"].get("ksens") or {} for run in runs]
-    Ks = sorted({K for ks in ks_all for K in ks}, key=int)
+    Ks = sorted({K for ks in ks_all for K in ks}, key=lambda K: (K == "auto", int(K) if K != "auto" else 0))
     rows = [[f"K = {K}"] + [mean_ci(ks[K]["scores"]) if K in ks else "-" for ks in ks_all] for K in Ks]
     t2s = [run["stages"].get("table2") for run in runs]
     rows.append(["e2e MLP"] + [mean_ci(t2["cells"]["obstacle-d2"]["mlp"]["scores"]) if t2 else "-" for t2 in t2s])

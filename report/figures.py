@@ -50,15 +50,19 @@ def gait_features(z: np.ndarray, dt: float) -> dict:
 
 
 def fig_ksens(ks: dict, path: str) -> str:
-    """Fig. 7: GES mean score (+- std over test designs) against K."""
+    """Fig. 7: GES mean score (+- std over test designs) against K; adaptive K ("auto") as a line if it ran."""
     plt = _plt()
-    K = sorted(int(k) for k in ks)
+    K = sorted(int(k) for k in ks if k != "auto")
     m, sd = [ks[str(k)]["mean"] for k in K], [ks[str(k)]["std"] for k in K]
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.errorbar(K, m, yerr=sd, fmt="o-", capsize=3, label="ours (mean +- std over test designs)")
+    if "auto" in ks:   # adaptive K (ges.py section 7b): its mean as a line, marked at the K it ended with
+        a = ks["auto"]
+        ax.axhline(a["mean"], color="purple", ls=":", lw=1)
+        ax.plot([a["final_K"]], [a["mean"]], "s", color="purple", label=f"adaptive K (ends at K={a['final_K']})")
     ax.axvline(PAPER_KSENS_PEAK_K, color="r", ls="--", lw=1, label=f"paper: peak at K={PAPER_KSENS_PEAK_K}")
     ax.set(xlabel="K (specialists)", ylabel="GES mean J [cm]", title="Fig. 7: K sensitivity (obstacle, D2)",
-           xticks=sorted(set(K) | {PAPER_KSENS_PEAK_K}))   # K is a count: integer ticks only
+           xticks=sorted(set(K) | {PAPER_KSENS_PEAK_K} | ({ks["auto"]["final_K"]} if "auto" in ks else set())))
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

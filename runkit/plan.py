@@ -81,12 +81,16 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     cells, tasks, searched = layout.tasks * layout.spaces, layout.tasks, layout.searched
     main_K = [p.K_d2, p.K_d3] * tasks   # each task's main run in each of the preset's two spaces
     other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
+    # adaptive K (ksens_auto) counted at its start, K_d2, plus its checks: every specialist scores every
+    # territory's; a run that grows costs more, one that merges less
+    auto = [p.K_d2] if getattr(p, "ksens_auto", False) else []
+    checks = sum(K * K * p.ges_n_check() * probe_J for K in auto) * p.ges_max_rounds
     work = {"baselines": np.array([tasks * (1 + layout.e2e * layout.spaces) * p.ppo_steps, 0, 0]),
             "ges": ges(main_K),
             "table2": np.array([0, (tasks + cells * layout.methods * p.n_test + cells * searched * p.tpe_trials) * J
                                 + cells * searched * peak_J, 0]),
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
-            "ksens": ges(other_K) + [0, len(other_K) * p.n_test * J, 0],
+            "ksens": ges(other_K + auto) + [0, len(other_K + auto) * p.n_test * J, checks],
             "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
     # control steps the idle cores could have done: a stage's GES runs side by side, their specialists in waves
     # of `workers` each round; its score sets side by side
@@ -94,7 +98,7 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     ges_idle = lambda Ks: np.array([idle(sum(Ks)) * spec, 0, 0])   # noqa: E731
     waste = {"ges": ges_idle(main_K),
              "table3": ges_idle([p.K_d2] * other_inits) + [0, idle(other_inits) * p.n_test * J, 0],
-             "ksens": ges_idle(other_K) + [0, idle(len(other_K)) * p.n_test * J, 0]}
+             "ksens": ges_idle(other_K + auto) + [0, idle(len(other_K + auto)) * p.n_test * J, 0]}
     played = played_share(p)
     fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
     # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width

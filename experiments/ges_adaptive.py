@@ -1,0 +1,152 @@
+"""Study: GES with adaptive K (ges.py section 7b) against fixed K on planted landscapes (docs/ges_adaptive).
+
+For B planted sites (ges.planted: B behaviours, each best in its own region) and 10 seeds per setting, in 2-D and
+3-D, run GES with K = auto (starting at 3) and with fixed K in {1, 3, 6} and K = B; per run record the final K,
+the rounds to 95 % coverage (or the cap of 20) and the mean score of 2,000 uniform test designs routed by eq. 10.
+
+    python -m experiments.ges_adaptive OUT [--workers 2] [--seeds 10]   # resumable: OUT/runs.jsonl
+    python -m experiments.ges_adaptive OUT --report docs/ges_adaptive   # tables (README.md) and the K figure
+
+Each run is a few seconds of one core (numpy only); 500 runs take ~20 min on 2 cores.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import ges  # noqa: E402
+
+BS, DIMS, FIXED = (1, 2, 3, 5, 8), (2, 3), (1, 3, 6)
+
+
+def settings(seeds: int) -> list:
+    """(B, dim, seed, K) of every run: adaptive, the fixed Ks and K = B (once, if it is one of them)."""
+    return [(B, dim, seed, K) for dim in DIMS for B in BS for seed in range(seeds)
+            for K in ["auto", *dict.fromkeys([*FIXED, B])]]
+
+
+def one(B: int, dim: int, seed: int, K) -> dict:
+    t0 = time.time()
+    with tempfile.TemporaryDirectory() as d:
+        res, m = ges.demo_adaptive(d, K, B, dim, seed)
+    rounds = res.history["rounds"]
+    return {"B": B, "dim": dim, "seed": seed, "K": K, "final_K": len(res.ckpt), "rounds": res.rounds,
+            "coverage": res.coverage, "mean_score": m, "K_per_round": [len(h["mu"]) for h in rounds],
+            "events": [[h["round"], e["kind"]] for h in rounds for e in h.get("events", [])],
+            "seconds": time.time() - t0}
+
+
+def run(out: str, seeds: int, workers: int) -> list:
+    """Every run of settings(seeds) not yet in OUT/runs.jsonl, `workers` at a time; a rerun resumes."""
+    os.makedirs(out, exist_ok=True)
+    path = os.path.join(out, "runs.jsonl")
+    done = load(path)
+    have = {(r["B"], r["dim"], r["seed"], r["K"]) for r in done}
+    todo = [s for s in settings(seeds) if s not in have]
+    t0 = time.time()
+    with ProcessPoolExecutor(workers) as ex, open(path, "a") as fh:
+        for i, r in enumerate(ex.map(one, *zip(*todo)) if todo else []):
+            fh.write(json.dumps(r) + "\n")
+            fh.flush()
+            done.append(r)
+            if (i + 1) % 20 == 0 or i + 1 == len(todo):
+                el = time.time() - t0
+                print(f"[ges_adaptive] {i + 1}/{len(todo)} runs, {el:.0f} s, eta {el / (i + 1) * (len(todo) - i - 1):.0f} s",
+                      flush=True)
+    return done
+
+
+def load(path: str) -> list:
+    if not os.path.exists(path):
+        return []
+    with open(path) as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def pick(runs, **kw) -> list:
+    return [r for r in runs if all(r[k] == v for k, v in kw.items())]
+
+
+def tables(runs: list) -> tuple[list, dict]:
+    """Markdown rows per (dim, B) and each goal's verdict."""
+    lines = ["| d | B | auto: final K (median, range) | K within B +-1 | rounds to 95 %: auto / K = B (median) | "
+             "mean score: auto / K=1 / K=3 / K=6 / K=B | auto / best fixed of 1, 3, 6 |",
+             "|---|---|---|---|---|---|---|"]
+    goals = {"K": [], "score": [], "rounds": []}
+    for dim in DIMS:
+        for B in BS:
+            auto = pick(runs, B=B, dim=dim, K="auto")
+            if not auto:
+                continue
+            fk = np.array([r["final_K"] for r in auto])
+            near = float(np.mean(np.abs(fk - B) <= 1))
+            mean = {K: np.mean([r["mean_score"] for r in pick(runs, B=B, dim=dim, K=K)]) for K in [*FIXED, B]}
+            m_auto = np.mean([r["mean_score"] for r in auto])
+            best = max(mean[K] for K in FIXED)
+            r_auto = np.median([r["rounds"] for r in auto])
+            r_B = np.median([r["rounds"] for r in pick(runs, B=B, dim=dim, K=B)])
+            if B in (1, 2, 3, 5):
+                goals["K"].append((dim, B, near))
+            goals["score"].append((dim, B, m_auto / best))
+            goals["rounds"].append((dim, B, r_auto, r_B))
+            lines.append(f"| {dim} | {B} | {np.median(fk):.0f} ({fk.min()}-{fk.max()}) | {near:.0%} | "
+                         f"{r_auto:.1f} / {r_B:.1f} | {m_auto:.3f} / " + " / ".join(f"{mean[K]:.3f}" for K in
+                                                                                   [*FIXED, B]) +
+                         f" | {m_auto / best:.3f} |")
+    return lines, goals
+
+
+def figure(runs: list, path: str) -> str:
+    """K over rounds of the adaptive runs: median and range over seeds per B, one panel per dimension."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(9, 3.4), layout="constrained")
+    axes = fig.subplots(1, len(DIMS), sharey=True)
+    for ax, dim in zip(axes, DIMS):
+        for c, B in enumerate(BS):
+            ks = [r["K_per_round"] for r in pick(runs, B=B, dim=dim, K="auto")]
+            if not ks:
+                continue
+            n = max(map(len, ks))
+            pad = np.array([k + [k[-1]] * (n - len(k)) for k in ks], dtype=float)   # a finished run keeps its K
+            t = np.arange(n)
+            col = ges.COLORS[c % len(ges.COLORS)]
+            ax.plot(t, np.median(pad, 0), "-", color=col, lw=1.8, label=f"B = {B}")
+            ax.fill_between(t, pad.min(0), pad.max(0), color=col, alpha=0.15)
+            ax.axhline(B, color=col, ls=":", lw=0.8)
+        ax.set(xlabel="round", title=f"{dim}-D: K over rounds (median, range of seeds; dotted: B)")
+    axes[0].set_ylabel("K")
+    axes[-1].legend(fontsize=8)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--report", metavar="DIR", help="write DIR/tables.md and DIR/k_over_rounds.png from OUT")
+    args = ap.parse_args(argv)
+    runs = load(os.path.join(args.out, "runs.jsonl")) if args.report else run(args.out, args.seeds, args.workers)
+    lines, goals = tables(runs)
+    print("\n".join(lines))
+    for g, v in goals.items():
+        print(g, v)
+    if args.report:
+        os.makedirs(args.report, exist_ok=True)
+        with open(os.path.join(args.report, "tables.md"), "w") as fh:
+            fh.write("\n".join(lines) + "\n")
+        print(figure(runs, os.path.join(args.report, "k_over_rounds.png")))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
