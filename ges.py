@@ -557,7 +557,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     if scores.shape != (K, len(designs)) or np.isnan(scores).any():
         raise ValueError(f"score_fn must return {len(designs)} non-NaN scores per specialist, got shape "
                          f"{scores.shape} with {int(np.isnan(scores).sum())} NaN")
-    scores, check_scores = scores[:, :len(probes)], scores[:, len(probes):].reshape(K, K, config.n_check)
+    scores, check_scores = scores[:, :len(probes)], scores[:, len(probes):].reshape(K, K, checks.shape[1])
     winner = np.argmax(scores, axis=0)  # ties -> lower index [facts]
     # Refit (Alg. 1 line 17, eq. 7) each territory to all the designs it holds.
     eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
