@@ -166,6 +166,7 @@ class GESConfig:
     merge_tol: float = 0.05           # merge j if a neighbour scores j's checks within this share of the scale
     split_gap: float = 0.25           # challenge k if its checks' two 2-means halves differ by this share
     split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split
+    challenge_rounds: int = 2         # rounds a challenger trains before the merge test may retire it
 
     def __post_init__(self):
         def need(name, ok, allowed):
@@ -194,8 +195,9 @@ class GESConfig:
         need("n_check", self.n_check >= 2, "an integer >= 2 (the split test halves a territory's checks)")
         need("merge_tol", 0 <= self.merge_tol < 1, "in [0, 1)")
         need("split_gap", 0 < self.split_gap < 1, "in (0, 1)")
-        need("split_cooldown", isinstance(self.split_cooldown, (int, np.integer)) and self.split_cooldown >= 0,
-             "an integer >= 0")
+        for name in ("split_cooldown", "challenge_rounds"):
+            need(name, isinstance(getattr(self, name), (int, np.integer)) and getattr(self, name) >= 0,
+                 "an integer >= 0")
         if self.adaptive:
             need("K", self.K_min <= self.K <= self.K_max, f"in [K_min, K_max] = [{self.K_min}, {self.K_max}] "
                  "(adaptive K starts there)")
@@ -563,7 +565,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
     wins = np.bincount(winner, minlength=K)
     terr = {"ids": list(ids), "eta": eta, "ckpt": list(ckpt_out), "wait": dict(state.get("wait", {})),
-            "next_id": state.get("next_id", K), "events": []}
+            "next_id": state.get("next_id", K), "events": [], "born": dict(state.get("born", {}))}
     done = t + 1 >= config.max_rounds
     if config.adaptive:
         terr = merge(terr, check_scores, config, t + 1)
@@ -580,7 +582,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     new = {"round": t + 1, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in terr["eta"]],
            "ckpt": terr["ckpt"], "done": done}
     if config.adaptive:
-        new.update(ids=terr["ids"], wait=terr["wait"], next_id=terr["next_id"])
+        new.update(ids=terr["ids"], wait=terr["wait"], next_id=terr["next_id"], born=terr["born"])
     entry = _history_entry(space, new, cov, wins, probes, winner)
     if config.adaptive:
         entry.update(ids_trained=list(ids), ids=terr["ids"], events=terr["events"])
@@ -617,11 +619,13 @@ def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int) -> dict:
             m = np.array([S[i, j].mean() for i in others])
             cands.append(((S[j, j].mean() - m.max()) / scale, j, others[int(np.argmax(m))]))
     gone, absorbers, events = set(), set(), list(terr["events"])
+    # a challenger (and its pair) is judged only after challenge_rounds rounds of its own training
+    young = {k for k in range(K) if r - terr["born"].get(str(terr["ids"][k]), -10 ** 6) < config.challenge_rounds}
     eta = list(terr["eta"])
     for gap, j, i in sorted(cands, key=lambda c: (c[0], -c[1])):   # ties: the younger goes
         if gap > config.merge_tol or K - len(gone) <= config.K_min:
             break
-        if j in gone or j in absorbers or i in gone:
+        if j in gone or j in absorbers or i in gone or j in young or i in young:
             continue
         eta[i] = np.vstack([eta[i], eta[j]])
         gone.add(j)
@@ -652,7 +656,7 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
     2-means label). At most one split per territory and round, K <= K_max; a territory waits a round after a
     split, split_cooldown rounds after absorbing one (so a refuted challenger is not reborn every round)."""
     scale, out = score_scale(S), dict(terr, ids=list(terr["ids"]), eta=list(terr["eta"]), ckpt=list(terr["ckpt"]),
-                                      wait=dict(terr["wait"]), events=list(terr["events"]))
+                                      wait=dict(terr["wait"]), events=list(terr["events"]), born=dict(terr["born"]))
     for k in range(len(S)):
         pid = terr["ids"][k]
         if len(out["ids"]) >= config.K_max or out["wait"].get(str(pid), 0) > r:
@@ -675,6 +679,7 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
         out["eta"].append(held[side == lo])
         out["ckpt"].append(terr["ckpt"][k])
         out["wait"].update({str(pid): r + 2, str(cid): r + 2})
+        out["born"][str(cid)] = r
         out["next_id"] = cid + 1
         out["events"].append({"kind": "split", "id": pid, "child": cid, "gap": float(gap),
                               "reason": f"its checks' halves score {m.max():.3g} and {m.min():.3g}: "
