@@ -165,8 +165,9 @@ class GESConfig:
     n_check: int = 16                 # designs drawn from each territory, scored by every specialist, per round
     merge_tol: float = 0.05           # merge j if a neighbour scores j's checks within this share of the scale
     split_gap: float = 0.25           # challenge k if its checks' two 2-means halves differ by this share
-    split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split
-    challenge_rounds: int = 2         # rounds a challenger trains before the merge test may retire it
+    split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split,
+                                      #   doubled for each challenger of its own it took back (backoff)
+    challenge_rounds: int = 2         # rounds a specialist (the first K, a challenger) trains before a merge test
 
     def __post_init__(self):
         def need(name, ok, allowed):
@@ -448,7 +449,8 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
     state["history"] = [_history_entry(space, state, coverage(mu, sigma, points, config.tau), zeros,
                                        np.zeros((0, space.d)), [])]
     if config.adaptive:   # a specialist's id names it while others come and go (section 7b)
-        state.update(ids=list(range(config.K)), wait={}, next_id=config.K)
+        state.update(ids=list(range(config.K)), wait={}, next_id=config.K,
+                     born={str(k): 0 for k in range(config.K)})   # the first K are judged like challengers
         state["history"][0].update(ids_trained=list(range(config.K)), ids=list(range(config.K)), events=[])
     return state
 
@@ -565,7 +567,8 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
     wins = np.bincount(winner, minlength=K)
     terr = {"ids": list(ids), "eta": eta, "ckpt": list(ckpt_out), "wait": dict(state.get("wait", {})),
-            "next_id": state.get("next_id", K), "events": [], "born": dict(state.get("born", {}))}
+            "next_id": state.get("next_id", K), "events": [], "born": dict(state.get("born", {})),
+            "parent": dict(state.get("parent", {})), "strikes": dict(state.get("strikes", {}))}
     done = t + 1 >= config.max_rounds
     if config.adaptive:
         terr = merge(terr, check_scores, config, t + 1)
@@ -582,7 +585,8 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     new = {"round": t + 1, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in terr["eta"]],
            "ckpt": terr["ckpt"], "done": done}
     if config.adaptive:
-        new.update(ids=terr["ids"], wait=terr["wait"], next_id=terr["next_id"], born=terr["born"])
+        new.update(ids=terr["ids"], wait=terr["wait"], next_id=terr["next_id"], born=terr["born"],
+                   parent=terr["parent"], strikes=terr["strikes"])
     entry = _history_entry(space, new, cov, wins, probes, winner)
     if config.adaptive:
         entry.update(ids_trained=list(ids), ids=terr["ids"], events=terr["events"])
@@ -610,7 +614,8 @@ def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int) -> dict:
     and G-means' merge-back, Pelleg & Moore 2000, Hamerly & Elkan 2003, made on scores instead of likelihoods:
     what counts is how well a design is served, not where it lies). The absorber takes j's designs and keeps
     its checkpoint. Smallest gaps first; a specialist absorbed or absorbing this round is not merged again,
-    and K stays >= K_min. Winning no probes is not enough: a contested border says nothing of the interior."""
+    and K stays >= K_min. Every specialist, the first K too, is judged only after challenge_rounds rounds of
+    its own training (at one, the planted ones are still near-uniform mixtures, alike everywhere). Winning no probes is not enough: a contested border says nothing of the interior."""
     K, scale = len(S), score_scale(S)
     cands = []
     for j in range(K):
@@ -619,7 +624,7 @@ def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int) -> dict:
             m = np.array([S[i, j].mean() for i in others])
             cands.append(((S[j, j].mean() - m.max()) / scale, j, others[int(np.argmax(m))]))
     gone, absorbers, events = set(), set(), list(terr["events"])
-    # a challenger (and its pair) is judged only after challenge_rounds rounds of its own training
+    # a specialist (and its pair) is judged only after challenge_rounds rounds of its own training
     young = {k for k in range(K) if r - terr["born"].get(str(terr["ids"][k]), -10 ** 6) < config.challenge_rounds}
     eta = list(terr["eta"])
     for gap, j, i in sorted(cands, key=lambda c: (c[0], -c[1])):   # ties: the younger goes
@@ -632,10 +637,16 @@ def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int) -> dict:
         absorbers.add(i)
         events.append({"kind": "merge", "id": terr["ids"][j], "into": terr["ids"][i], "gap": float(gap),
                        "reason": f"specialist {terr['ids'][i]} scores its checks within {gap:+.1%} of the scale"})
-    wait = dict(terr["wait"], **{str(terr["ids"][i]): r + 1 + config.split_cooldown for i in absorbers})
+    # backoff: a territory that takes back a challenger it begot (one refuted split) waits twice as long
+    strikes = dict(terr.get("strikes", {}))
+    for e in events[len(terr["events"]):]:
+        if terr["parent"].get(str(e["id"])) == e["into"]:
+            strikes[str(e["into"])] = strikes.get(str(e["into"]), 0) + 1
+    wait = dict(terr["wait"], **{str(terr["ids"][i]): r + 1 + config.split_cooldown * 2 ** strikes.get(
+        str(terr["ids"][i]), 0) for i in absorbers})
     keep = [k for k in range(K) if k not in gone]
     return dict(terr, ids=[terr["ids"][k] for k in keep], eta=[eta[k] for k in keep],
-                ckpt=[terr["ckpt"][k] for k in keep], wait=wait, events=events)
+                ckpt=[terr["ckpt"][k] for k in keep], wait=wait, events=events, strikes=strikes)
 
 
 def two_means(x: np.ndarray, iters: int = 10) -> np.ndarray:
@@ -654,9 +665,11 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
     that is hard for every behaviour; the challenger's next round can: if it learns nothing its parent does
     not know, the merge test retires it. The parent keeps the upper half (its designs and checks, split by
     2-means label). At most one split per territory and round, K <= K_max; a territory waits a round after a
-    split, split_cooldown rounds after absorbing one (so a refuted challenger is not reborn every round)."""
+    split, split_cooldown rounds after absorbing one, doubled for each challenger of its own it took back
+    (exponential backoff, as in retrying a refuted test: a refuted challenger is not reborn every round)."""
     scale, out = score_scale(S), dict(terr, ids=list(terr["ids"]), eta=list(terr["eta"]), ckpt=list(terr["ckpt"]),
-                                      wait=dict(terr["wait"]), events=list(terr["events"]), born=dict(terr["born"]))
+                                      wait=dict(terr["wait"]), events=list(terr["events"]), born=dict(terr["born"]),
+                                      parent=dict(terr["parent"]))
     for k in range(len(S)):
         pid = terr["ids"][k]
         if len(out["ids"]) >= config.K_max or out["wait"].get(str(pid), 0) > r:
@@ -680,6 +693,7 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
         out["ckpt"].append(terr["ckpt"][k])
         out["wait"].update({str(pid): r + 2, str(cid): r + 2})
         out["born"][str(cid)] = r
+        out["parent"][str(cid)] = pid
         out["next_id"] = cid + 1
         out["events"].append({"kind": "split", "id": pid, "child": cid, "gap": float(gap),
                               "reason": f"its checks' halves score {m.max():.3g} and {m.min():.3g}: "
@@ -953,11 +967,12 @@ def routed_mean(res: GESResult, land: PlantedLandscape, n: int = 2000, seed: int
 
 def demo_adaptive(out_dir: str, K: str | int = "auto", B: int = 3, dim: int = 2, seed: int = 0,
                   workers: int = 1, max_rounds: int = 20) -> tuple:
-    """GES on planted(B, dim, seed) with adaptive K (K = "auto", starting at the paper's K = 3) or a fixed K;
-    writes out_dir/territories.png. Returns (result, mean score of routed_mean)."""
+    """GES on planted(B, dim, seed) with adaptive K (K = "auto", starting at K_max: merging takes a round,
+    splitting three, docs/ges_adaptive) or a fixed K; writes out_dir/territories.png. Returns (result, mean
+    score of routed_mean)."""
     land = planted(B, dim, seed)
     if K == "auto":
-        cfg = GESConfig(K=3, adaptive=True, max_rounds=max_rounds)
+        cfg = GESConfig(K=GESConfig.K_max, adaptive=True, max_rounds=max_rounds)
     else:
         cfg = GESConfig(K=int(K), max_rounds=max_rounds)
     ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
@@ -1048,7 +1063,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="demo: an integer >= 0")
     ap.add_argument("--workers", type=int, default=1, help="demo: processes, >= 1 (>1 uses a ProcessPoolExecutor)")
     ap.add_argument("--K", help="demo on a landscape of --sites sites: 'auto' (adaptive K, section 7b, starting at "
-                    "3) or a fixed K >= 1")
+                    "K_max = 8) or a fixed K >= 1")
     ap.add_argument("--sites", type=int, help="demo: planted sites B >= 1 drawn from --seed (default 3 with --K)")
     args = ap.parse_args(argv)
     made = None

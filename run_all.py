@@ -316,7 +316,8 @@ class Preset:
     # [facts] round 0's steps per specialist (None: ges_round_steps): the authors' first GES round trains 1,600
     # updates, each later one 500 (~3.2x); a run that reaches its coverage after one round keeps round 0's steps
     ges_first_round_steps: int | None = None
-    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 7b), starting at K_d2, K <= K_d3: REPORT.md's
+    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 7b), K <= K_d3, starting there (merging takes a
+    # round, splitting three: docs/ges_adaptive): REPORT.md's
     # K-sensitivity table gains an "auto" row; each round scores ges_n_check() designs of every territory
     ksens_auto: bool = False
 
@@ -494,7 +495,7 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
     p = run.preset
     name, space = ges_name(task, sp, K, init), space_of(p, task, sp)
     run_dir = run.path("ges", name)
-    adaptive = dict(K=p.K_d2, adaptive=True, K_max=max(p.K_d2, p.K_d3), n_check=p.ges_n_check()) \
+    adaptive = dict(K=max(p.K_d2, p.K_d3), adaptive=True, K_max=max(p.K_d2, p.K_d3), n_check=p.ges_n_check()) \
         if K == "auto" else dict(K=K)
     config = ges.GESConfig(n_probe=p.ges_probes, probe_pool=p.ges_probe_pool,
                            n_init_designs=p.ges_init_designs, n_mc=p.ges_n_mc, max_rounds=p.ges_max_rounds,

@@ -1964,7 +1964,8 @@ def test_ges_adaptive_merges_a_three_specialist_start_on_one_site(tmp_path):
     merges = _events(res, "merge")
     assert merges and len(res.ckpt) <= 2, [len(h["mu"]) for h in res.history["rounds"]]
     assert all(e["gap"] <= ges.GESConfig.merge_tol for e in merges)
-    assert len(res.history["rounds"][1]["mu"]) < 3   # one behaviour: the first round already sees it
+    K = [len(h["mu"]) for h in res.history["rounds"]]
+    assert K[1] == 3 and K[2] < 3, K   # judged once they trained challenge_rounds = 2 rounds, then at once
 
 
 def test_ges_adaptive_keeps_its_bounds_and_resumes_exactly(tmp_path):
@@ -1987,6 +1988,27 @@ def test_ges_adaptive_keeps_its_bounds_and_resumes_exactly(tmp_path):
                                       for j, i in enumerate(k)])
     png = ges.plot_territories(resumed.history, str(tmp_path / "t.png"), background=land.region)
     assert os.path.getsize(png) > 20_000
+
+
+def test_ges_adaptive_refuted_challengers_back_off():
+    """A challenger that learned nothing its parent does not know (same scores on its checks) merges back, and
+    its parent waits split_cooldown x 2^strikes rounds before its next split; an unrelated merge adds no strike;
+    a challenger younger than challenge_rounds is not judged."""
+    cfg = ges.GESConfig(adaptive=True)
+    S = np.full((3, 3, 4), 0.2)                     # S[i, j]: specialist i on territory j's checks
+    S[:2, :2], S[2, 2] = 1.0, 1.0                   # 0 and its challenger 5 alike; 7 its own behaviour
+    def terr(r_born, strikes=None):
+        return {"ids": [0, 5, 7], "eta": [np.zeros((2, 2))] * 3, "ckpt": ["a", "b", "c"], "wait": {}, "events": [],
+                "born": {"0": 0, "5": r_born, "7": 0}, "parent": {"5": 0}, "strikes": strikes or {}}
+    out = ges.merge(terr(r_born=4), S, cfg, r=6)    # challenger 5 (born 4) merged into its parent 0
+    assert out["ids"] == [0, 7] and out["strikes"] == {"0": 1}
+    assert out["wait"] == {"0": 6 + 1 + 2 * cfg.split_cooldown}
+    again = ges.merge(terr(r_born=4, strikes={"0": 1}), S, cfg, r=6)
+    assert again["strikes"] == {"0": 2} and again["wait"]["0"] == 6 + 1 + 4 * cfg.split_cooldown
+    young = ges.merge(terr(r_born=5), S, cfg, r=6)  # one round of training: not judged yet
+    assert young["ids"] == [0, 5, 7] and young["strikes"] == {} and young["events"] == []
+    other = ges.merge(dict(terr(r_born=4), parent={}), S, cfg, r=6)   # 5 not 0's own: a merge, no strike
+    assert other["ids"] == [0, 7] and other["strikes"] == {} and other["wait"] == {"0": 6 + 1 + cfg.split_cooldown}
 
 
 def test_ges_adaptive_fixed_k_state_is_unchanged(synthetic_run):
@@ -3277,10 +3299,10 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     seconds = {k: 3600 * v["hours"] for k, v in rows.items()}
     assert seconds == pytest.approx({"baselines": 10.0, "ges": 25.2, "table2": 31.2, "table3": 5.0, "ksens": 2.2,
                                      "cost": 3.6, "figures": 40.0})   # figures: FIGURES_S, a fixed cost
-    # adaptive K adds a run at its start K = 3: 3 x 40; 4 x 20; probes 3 x 5 x 10 x 2 and its checks, every one
-    # of 3 specialists scoring 5 (= F) of each of 3 territories' designs, 10 steps, 2 rounds: 900
+    # adaptive K adds a run at its start and bound K = K_d3 = 6: 6 x 40; 4 x 20; probes 6 x 5 x 10 x 2 and its
+    # checks, every one of 6 specialists scoring 5 (= F) of each of 6 territories' designs, 10 steps, 2 rounds
     auto = plan.plan(replace(p, ksens_auto=True), layout, 1, train_rate=100.0, score_rate=66.0)["ksens"]
-    assert (auto["ppo_steps"], auto["score_steps"], auto["probe_steps"]) == (160, 160, 1300)
+    assert (auto["ppo_steps"], auto["score_steps"], auto["probe_steps"]) == (40 + 240, 160, 100 + 600 + 3600)
     two = plan.plan(p, layout, 2, train_rate=100.0, score_rate=66.0)
     # table3's 3 specialists on 2 cores: a wave of 2, then 1 alone at 2 / 1.68 the per-core rate: 2 + 1.68 core
     # turns for 3 jobs' work, 0.68 of a 40-step specialist idle; its one score set alone, 1.68 - 1 idle
