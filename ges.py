@@ -163,7 +163,7 @@ class GESConfig:
     K_min: int = 1                    # bounds of the adaptive K
     K_max: int = 8
     n_check: int = 16                 # designs drawn from each territory, scored by every specialist, per round
-    merge_tol: float = 0.05           # merge j if a neighbour scores j's checks within this share of the scale
+    merge_tol: float = 0.05           # merge j if another loses <= this share of the scale on j's checks, per design
     split_gap: float = 0.25           # challenge k if its checks' two 2-means halves differ by this share
     split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split,
                                       #   doubled for each challenger of its own it took back (backoff)
@@ -569,13 +569,14 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state,
     terr = {"ids": list(ids), "eta": eta, "ckpt": list(ckpt_out), "wait": dict(state.get("wait", {})),
             "next_id": state.get("next_id", K), "events": [], "born": dict(state.get("born", {})),
             "parent": dict(state.get("parent", {})), "strikes": dict(state.get("strikes", {}))}
-    done = t + 1 >= config.max_rounds
-    if config.adaptive:
-        terr = merge(terr, check_scores, config, t + 1)
+    capped = t + 1 >= config.max_rounds
+    if config.adaptive:   # at the cap, no more training: the young are judged too
+        terr = merge(terr, check_scores, config, t + 1, final=capped)
     fits = [refit(e, config.var_floor) for e in terr["eta"]]
     mu, sigma = np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
     cov = coverage(mu, sigma, points, config.tau)  # Alg. 1 line 18, eq. 9
-    done = bool(done or cov >= config.target_coverage)
+    # adaptive: the target coverage ends a run only once every split is tested (no challenger is young)
+    done = bool(capped or (cov >= config.target_coverage and not (config.adaptive and young(terr, config, t + 1))))
     if config.adaptive and not done:   # a challenger is born only when a round will train it
         kept = [ids.index(i) for i in terr["ids"]]
         terr = split(terr, checks[kept], check_scores[np.ix_(kept, kept)], config, t + 1, space.d)
@@ -608,35 +609,44 @@ def score_scale(S: np.ndarray) -> float:
     return max(float(own.mean()), 1e-12)
 
 
-def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int) -> dict:
-    """Retire each specialist whose territory another serves as well [ours]: j goes when the best other
-    specialist's mean score on j's checks is within merge_tol x scale of j's own (the test of X-means'
-    and G-means' merge-back, Pelleg & Moore 2000, Hamerly & Elkan 2003, made on scores instead of likelihoods:
-    what counts is how well a design is served, not where it lies). The absorber takes j's designs and keeps
-    its checkpoint. Smallest gaps first; a specialist absorbed or absorbing this round is not merged again,
-    and K stays >= K_min. Every specialist, the first K too, is judged only after challenge_rounds rounds of
-    its own training (at one, the planted ones are still near-uniform mixtures, alike everywhere). Winning no probes is not enough: a contested border says nothing of the interior."""
+def young(terr: dict, config: GESConfig, r: int) -> set:
+    """Positions of the specialists that have trained fewer than challenge_rounds rounds by round r."""
+    return {k for k, i in enumerate(terr["ids"]) if r - terr["born"].get(str(i), -10 ** 6) < config.challenge_rounds}
+
+
+def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int, final: bool = False) -> dict:
+    """Retire each specialist whose territory another serves as well [ours]: j goes when some other specialist
+    i loses little on j's checks design by design, mean_c max(S[j, j, c] - S[i, j, c], 0) <= merge_tol x scale
+    (the test of X-means' and G-means' merge-back, Pelleg & Moore 2000, Hamerly & Elkan 2003, made on scores
+    instead of likelihoods: what counts is how well a design is served, not where it lies). Design by design,
+    not on the mean: a territory straddling two behaviours' regions is served better on the mean by the
+    behaviour of its larger part, yet still needs its own specialist for the rest. The absorber (the i of the
+    smallest loss) takes j's designs and keeps its checkpoint. Smallest losses first; a specialist absorbed or
+    absorbing this round is not merged again, and K stays >= K_min. Every specialist, the first K too, is
+    judged only after challenge_rounds rounds of its own training (at one, the planted ones are still
+    near-uniform mixtures, alike everywhere), or at the round cap (final: no more training). Winning no probes
+    is not enough: a contested border says nothing of a territory's interior."""
     K, scale = len(S), score_scale(S)
     cands = []
     for j in range(K):
         others = [i for i in range(K) if i != j]
         if others:
-            m = np.array([S[i, j].mean() for i in others])
-            cands.append(((S[j, j].mean() - m.max()) / scale, j, others[int(np.argmax(m))]))
+            loss = np.array([np.maximum(S[j, j] - S[i, j], 0).mean() for i in others])
+            cands.append((loss.min() / scale, j, others[int(np.argmin(loss))]))
     gone, absorbers, events = set(), set(), list(terr["events"])
-    # a specialist (and its pair) is judged only after challenge_rounds rounds of its own training
-    young = {k for k in range(K) if r - terr["born"].get(str(terr["ids"][k]), -10 ** 6) < config.challenge_rounds}
+    # a specialist (and its pair) is judged only after challenge_rounds rounds of its own training, or at the cap
+    fresh = set() if final else young(terr, config, r)
     eta = list(terr["eta"])
     for gap, j, i in sorted(cands, key=lambda c: (c[0], -c[1])):   # ties: the younger goes
         if gap > config.merge_tol or K - len(gone) <= config.K_min:
             break
-        if j in gone or j in absorbers or i in gone or j in young or i in young:
+        if j in gone or j in absorbers or i in gone or j in fresh or i in fresh:
             continue
         eta[i] = np.vstack([eta[i], eta[j]])
         gone.add(j)
         absorbers.add(i)
         events.append({"kind": "merge", "id": terr["ids"][j], "into": terr["ids"][i], "gap": float(gap),
-                       "reason": f"specialist {terr['ids'][i]} scores its checks within {gap:+.1%} of the scale"})
+                       "reason": f"specialist {terr['ids'][i]} serves its checks within {gap:.1%} of the scale"})
     # backoff: a territory that takes back a challenger it begot (one refuted split) waits twice as long
     strikes = dict(terr.get("strikes", {}))
     for e in events[len(terr["events"]):]:

@@ -989,12 +989,13 @@ def fig_sensitivity(run: Run, t2: dict, path: str) -> str:
     return path
 
 
-def ges_logs(run: Run, name: str, K: int) -> list:
-    """Each specialist's per-round CSVs, in round order (steps are cumulative across rounds)."""
+def ges_logs(run: Run, name: str) -> list:
+    """Each specialist's per-round CSVs, in round order (steps are cumulative across rounds); specialists by
+    the ids in the file names (adaptive K's challengers count on past K)."""
     ck = run.path("ges", name, ges.CKPT_DIR)
-    files = sorted(os.listdir(ck)) if os.path.isdir(ck) else []
-    return [(f"specialist {k}", [os.path.join(ck, f) for f in files if f.startswith(f"spec{k}_") and
-                                 f.endswith(".csv")]) for k in range(K)]
+    files = [f for f in (sorted(os.listdir(ck)) if os.path.isdir(ck) else []) if f.endswith(".csv")]
+    ids = sorted({int(f[len("spec"):].split("_")[0]) for f in files if f.startswith("spec")})
+    return [(f"specialist {k}", [os.path.join(ck, f) for f in files if f.startswith(f"spec{k}_")]) for k in ids]
 
 
 def stage_figures(run: Run) -> dict:
@@ -1030,8 +1031,7 @@ def stage_figures(run: Run) -> dict:
         figs[f"curves-e2e-{t}"] = fig_curves(logs, os.path.join(cdir, f"e2e_{t}.png"),
                                              f"{t}: baseline-design policy, e2e MLP and MoE")
     for name in sorted(os.listdir(run.path("ges"))):
-        K = int(name.split("-K")[1].split("-")[0])
-        figs[f"curves-ges-{name}"] = fig_curves(ges_logs(run, name, K), os.path.join(cdir, f"ges_{name}.png"),
+        figs[f"curves-ges-{name}"] = fig_curves(ges_logs(run, name), os.path.join(cdir, f"ges_{name}.png"),
                                                 f"GES {name}: specialists (rounds concatenated)")
     bo = run.path("policies", "bo")
     if os.path.isdir(bo):
