@@ -3292,8 +3292,8 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     p = replace(run_all.SMOKE, ppo_steps=100, ges_first_round_steps=30, ges_round_steps=10, ges_max_rounds=2,
                 score_episodes=2, peak_episodes=3, probe_level_steps=(2,), ges_probes=5, n_test=4, tpe_trials=6,
                 tpe_startup=2, cost_trials=3, table3_inits=("grid", "fps+lloyd"), ksens_K=(1, 3), ksens_auto=False,
-                ksens_auto_K=None)
-    layout = plan.Layout(tasks=2, spaces=2, e2e=2, methods=4, searched=3, episode_steps=10)
+                ksens_auto_K=None, episode_steps=10)   # the preset's episodes, not the layout's, are played
+    layout = plan.Layout(tasks=2, spaces=2, e2e=2, methods=4, searched=3, episode_steps=400)
     rows = plan.plan(p, layout, 1, train_rate=100.0, score_rate=66.0)
     steps = {k: (v["ppo_steps"], v["score_steps"], v["probe_steps"]) for k, v in rows.items()}
     assert steps == {
