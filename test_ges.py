@@ -2,6 +2,7 @@
 
 Run: pytest -q test_ges.py
 """
+import contextlib
 import csv as csv_module
 import functools
 import glob
@@ -358,8 +359,9 @@ def test_ballu_curriculum_rule():
 
 @pytest.mark.slow
 def test_ballu_stand_scores_low_and_curriculum_moves_down():
-    # `stand` never reaches the obstacle: every episode ends with x < 0.5, 20 levels down from 28.
-    s = ballu.score(ballu.stand, [BASELINE, D_MID], "obstacle")
+    # `stand` never reaches the obstacle: every episode ends with x < 0.5, 20 levels down from 28 (5 s episodes:
+    # standing still needs no 20 s to show it, and they cost a quarter of the facts' episode)
+    s = ballu.score(ballu.stand, [BASELINE, D_MID], "obstacle", cfg=replace(BalluConfig(), episode_steps=100))
     np.testing.assert_allclose(s, ballu.level_score("obstacle", 8))
 
 
@@ -2488,7 +2490,7 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
     assert set(res["stages"]["table3"]) == set(run_all.SMOKE.table3_inits)
     assert set(res["stages"]["ksens"]) == {str(k) for k in run_all.SMOKE.ksens_K} | {"auto"}   # ksens_auto
     auto = res["stages"]["ksens"]["auto"]
-    assert 1 <= auto["final_K"] <= run_all.SMOKE.K_d3 and len(auto["scores"]) == run_all.SMOKE.n_test
+    assert 1 <= auto["final_K"] <= run_all.SMOKE.ges_auto_K() and len(auto["scores"]) == run_all.SMOKE.n_test
     cost = res["stages"]["cost"]
     assert cost["bo_s"] > 0 and cost["ges_s"] > 0 and np.isfinite(cost["reduction_pct"])
     assert 0.0 <= res["stages"]["figures"]["moe_gate_entropy"] <= 1.0 + 1e-9
@@ -2577,33 +2579,6 @@ def test_run_all_stopped_by_its_time_and_rerun_equals_uninterrupted(smoke_run, t
     assert run_all.main(args) == 0
     mine, ref = raw_numbers(str(tmp_path)), raw_numbers(smoke_run)
     assert len(mine) == 2 * 10 and [k for k in mine if mine[k] != ref[k]] == []   # policy.pt, policy_best.pt
-
-
-@pytest.mark.slow
-def test_run_all_killed_and_rerun_equals_uninterrupted(smoke_run, tmp_path, monkeypatch):
-    out = str(tmp_path / "b")
-    args = ["--preset", "smoke", "--out", out, "--workers", "1", "--seed", "3"]
-    assert run_all.main(args + ["--only", "table1,baselines"]) == 0
-    monkeypatch.setenv("RUN_ALL_FAIL_AT", "ges:obstacle-d3-K6-fps-lloyd:round1")   # mid GES run
-    with pytest.raises(RuntimeError, match="simulated kill"):
-        run_all.main(args)
-    monkeypatch.setenv("RUN_ALL_FAIL_AT", "tpe:obstacle-d2-ges:trial1")            # mid TPE search
-    with pytest.raises(RuntimeError, match="simulated kill"):
-        run_all.main(args)
-    monkeypatch.delenv("RUN_ALL_FAIL_AT")
-    assert run_all.main(args) == 0
-    a, b = (read_json(os.path.join(d, "results.json"))["stages"] for d in (smoke_run, out))
-    assert _numbers_only(a) == _numbers_only(b)
-    mine, ref = raw_numbers(out), raw_numbers(smoke_run)   # every J and final x, GES state, TPE trial, policy
-    assert mine.keys() == ref.keys() and [k for k in ref if mine[k] != ref[k]] == []
-    assert _report_numbers(os.path.join(smoke_run, "REPORT.md")) == _report_numbers(os.path.join(out,
-                                                                                                "REPORT.md"))
-    # the killed GES run repeated its interrupted round and continued the specialists' PPO step counts
-    ck = os.path.join(out, "ges", "obstacle-d3-K6-fps-lloyd", "ckpt")
-    for r in range(run_all.SMOKE.ges_max_rounds):
-        steps = ppo.load_checkpoint(os.path.join(ck, f"spec0_round{r:02d}.ckpt"))["steps"]
-        batch = run_all.SMOKE.ppo_envs * run_all.SMOKE.ppo_rollout
-        assert steps >= (r + 1) * run_all.SMOKE.ges_round_steps > steps - batch
 
 
 @pytest.mark.slow
@@ -2781,33 +2756,27 @@ def _wait_for_port(port: int, seconds: float = 60) -> None:
     raise TimeoutError(f"nothing listens on port {port} after {seconds} s")
 
 
-@pytest.mark.slow
-def test_run_all_on_a_dask_cluster_started_by_hand_gives_the_same_numbers(smoke_run, tmp_path):
+@contextlib.contextmanager
+def dask_cluster_by_hand(folder, workers: int = 2, **env_extra):
     """The README's cluster commands as a user types them: `dask scheduler` and `dask worker ADDR --nthreads 1
-    --nworkers 2` started in a folder that is not the checkout, without PYTHONPATH (nothing of ours importable
-    there), then `--executor dask --scheduler ADDR`: the client uploads the modules, and the smoke preset gives
-    exactly the raw numbers of the inline run with the same seed: every score, GES territory, TPE trial and
-    policy checkpoint."""
+    --nworkers N` started in `folder` (not the checkout) without PYTHONPATH (nothing of ours importable there),
+    the workers' environment plus `env_extra`; yields the scheduler's address, then ends both."""
     import signal
     import socket
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     dask = [sys.executable, "-m", "dask"]
-    log = open(tmp_path / "cluster.log", "w")
+    log = open(os.path.join(folder, "cluster.log"), "w")
     procs = [subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-                              cwd=elsewhere, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)]
+                              cwd=folder, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)]
     try:
         _wait_for_port(port)
-        procs.append(subprocess.Popen(dask + ["worker", f"tcp://127.0.0.1:{port}", "--nthreads", "1", "--nworkers", "2",
-                                              "--no-dashboard"], cwd=elsewhere, env=env, stdout=log,
-                                      stderr=subprocess.STDOUT, start_new_session=True))
-        out = str(tmp_path / "dask")
-        assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "2", "--seed", "3", "--executor", "dask",
-                             "--scheduler", f"tcp://127.0.0.1:{port}"]) == 0
+        procs.append(subprocess.Popen(dask + ["worker", f"tcp://127.0.0.1:{port}", "--nthreads", "1", "--nworkers",
+                                              str(workers), "--no-dashboard"], cwd=folder, env={**env, **env_extra},
+                                      stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
+        yield f"tcp://127.0.0.1:{port}"
     finally:
         for p in reversed(procs):   # each in its own session: end the worker's nanny processes with it
             os.killpg(p.pid, signal.SIGTERM)
@@ -2817,9 +2786,44 @@ def test_run_all_on_a_dask_cluster_started_by_hand_gives_the_same_numbers(smoke_
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
         log.close()
-    mine, ref = raw_numbers(out), raw_numbers(smoke_run)
+
+
+@pytest.mark.slow
+def test_run_all_killed_on_a_dask_cluster_started_by_hand_and_rerun_equals_uninterrupted(smoke_run, tmp_path,
+                                                                                         monkeypatch):
+    """On a Dask cluster of 2 workers started by hand (dask_cluster_by_hand: the client uploads the modules),
+    `--executor dask --scheduler ADDR` killed twice and rerun gives exactly the raw numbers of the inline 1-worker
+    run with the same seed: every score, GES territory, TPE trial and policy checkpoint, and the REPORT's numbers.
+    One kill comes mid GES run (a hook in the client: RUN_ALL_FAIL_AT), one mid TPE search (a hook where the
+    search runs: the workers carry RUN_ALL_FAIL_AT from their start; the rerun's search resumes past that trial,
+    so it fires once). One test for executors, worker counts and resumes: a smoke run costs minutes."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    out = str(tmp_path / "b")
+    with dask_cluster_by_hand(str(elsewhere), RUN_ALL_FAIL_AT="tpe:obstacle-d2-ges:trial1") as address:
+        args = ["--preset", "smoke", "--out", out, "--workers", "2", "--seed", "3", "--executor", "dask",
+                "--scheduler", address]
+        assert run_all.main(args + ["--only", "table1,baselines"]) == 0
+        monkeypatch.setenv("RUN_ALL_FAIL_AT", "ges:obstacle-d3-K6-fps-lloyd:round1")   # mid GES run
+        with pytest.raises(RuntimeError, match="simulated kill at ges"):
+            run_all.main(args)
+        monkeypatch.delenv("RUN_ALL_FAIL_AT")
+        with pytest.raises(RuntimeError, match="simulated kill at tpe"):               # mid TPE search
+            run_all.main(args)
+        assert run_all.main(args) == 0
+    a, b = (read_json(os.path.join(d, "results.json"))["stages"] for d in (smoke_run, out))
+    assert _numbers_only(a) == _numbers_only(b)
+    mine, ref = raw_numbers(out), raw_numbers(smoke_run)   # every J and final x, GES state, TPE trial, policy
     assert mine.keys() == ref.keys() and len(ref) >= 100   # 111 in the smoke preset
     assert [k for k in ref if mine[k] != ref[k]] == []
+    assert _report_numbers(os.path.join(smoke_run, "REPORT.md")) == _report_numbers(os.path.join(out,
+                                                                                                "REPORT.md"))
+    # the killed GES run repeated its interrupted round and continued the specialists' PPO step counts
+    ck = os.path.join(out, "ges", "obstacle-d3-K6-fps-lloyd", "ckpt")
+    for r in range(run_all.SMOKE.ges_max_rounds):
+        steps = ppo.load_checkpoint(os.path.join(ck, f"spec0_round{r:02d}.ckpt"))["steps"]
+        batch = run_all.SMOKE.ppo_envs * run_all.SMOKE.ppo_rollout
+        assert steps >= (r + 1) * run_all.SMOKE.ges_round_steps > steps - batch
 
 
 @pytest.mark.slow
@@ -3127,7 +3131,7 @@ def test_runkit_plan_counts_the_work_a_run_does(smoke_run, capsys):
     standalone policies' PPO steps, and the control steps of every stored score (score sets and TPE trials),
     with the GES probes at most the plan's round cap."""
     pl, p = plan.plan(run_all.SMOKE, run_all.LAYOUT), run_all.SMOKE
-    ep = ballu.BalluConfig().episode_steps
+    ep = p.env_config(ballu.BalluConfig()).episode_steps
     names = [name for name, *_ in run_all.baseline_jobs(run_all.Run(smoke_run, p, 3, 1))]
     steps = sum(ppo.load_checkpoint(os.path.join(smoke_run, "policies", n, "policy.pt"))["steps"] for n in names)
     assert steps == pl["baselines"]["ppo_steps"]
@@ -3287,8 +3291,9 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     steps/s, scores playing 66 % of their steps (2 episodes each): every stage's seconds are its steps / 100."""
     p = replace(run_all.SMOKE, ppo_steps=100, ges_first_round_steps=30, ges_round_steps=10, ges_max_rounds=2,
                 score_episodes=2, peak_episodes=3, probe_level_steps=(2,), ges_probes=5, n_test=4, tpe_trials=6,
-                tpe_startup=2, cost_trials=3, table3_inits=("grid", "fps+lloyd"), ksens_K=(1, 3), ksens_auto=False)
-    layout = plan.Layout(tasks=2, spaces=2, e2e=2, methods=4, searched=3, episode_steps=10)
+                tpe_startup=2, cost_trials=3, table3_inits=("grid", "fps+lloyd"), ksens_K=(1, 3), ksens_auto=False,
+                ksens_auto_K=None, episode_steps=10)   # the preset's episodes, not the layout's, are played
+    layout = plan.Layout(tasks=2, spaces=2, e2e=2, methods=4, searched=3, episode_steps=400)
     rows = plan.plan(p, layout, 1, train_rate=100.0, score_rate=66.0)
     steps = {k: (v["ppo_steps"], v["score_steps"], v["probe_steps"]) for k, v in rows.items()}
     assert steps == {
@@ -3303,7 +3308,7 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     seconds = {k: 3600 * v["hours"] for k, v in rows.items()}
     assert seconds == pytest.approx({"baselines": 10.0, "ges": 25.2, "table2": 31.2, "table3": 5.0, "ksens": 2.2,
                                      "cost": 3.6, "figures": 40.0})   # figures: FIGURES_S, a fixed cost
-    # adaptive K adds a run at its start and bound K = K_d3 = 6: 6 x 40; 4 x 20; probes 6 x 5 x 10 x 2 and its
+    # adaptive K adds a run at its start and bound K = max(K_d2, K_d3) = 6 (ksens_auto_K None): 6 x 40; 4 x 20; probes 6 x 5 x 10 x 2 and its
     # checks, every one of 6 specialists scoring 5 (= F) of each of 6 territories' designs, 10 steps, 2 rounds
     auto = plan.plan(replace(p, ksens_auto=True), layout, 1, train_rate=100.0, score_rate=66.0)["ksens"]
     assert (auto["ppo_steps"], auto["score_steps"], auto["probe_steps"]) == (40 + 240, 160, 100 + 600 + 3600)

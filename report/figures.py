@@ -20,11 +20,12 @@ def _plt():
     return plt
 
 
-def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30) -> np.ndarray:
-    """Left/right toe z over one episode (steps, 2): a 1-lane BalluEnv, toe tips from the env's own state. The
-    time limit is one step longer than the episode, so the last sample is not taken after an automatic reset."""
+def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30, steps: int | None = None) -> np.ndarray:
+    """Left/right toe z (steps, 2) over one episode of `steps` control steps (None: the env's; a run passes its
+    preset's): a 1-lane BalluEnv, toe tips from the env's own state. The time limit is one step longer than the
+    episode, so the last sample is not taken after an automatic reset."""
     cfg = ballu.policy_config(policy, task)   # the observation it trained with
-    steps = cfg.episode_steps
+    steps = steps or cfg.episode_steps
     env = ballu.BalluEnv(1, replace(cfg, episode_steps=steps + 1), curriculum=False)
     try:
         obs, _ = env.reset(seed=0, options={"designs": design_full, "levels": level})

@@ -65,7 +65,7 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     GES runs are counted at their round cap (a run that reaches the target coverage stops earlier). Fixed costs
     that only matter for tiny presets (smoke): each process pool a stage starts (POOLS, with workers > 1) and the
     figures stage (FIGURES_S)."""
-    p, episode = preset, layout.episode_steps
+    p, episode = preset, getattr(preset, "episode_steps", None) or layout.episode_steps   # a preset's own first
     J = p.score_episodes * episode                                            # one design's score J
     peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
     probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
@@ -81,9 +81,9 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     cells, tasks, searched = layout.tasks * layout.spaces, layout.tasks, layout.searched
     main_K = [p.K_d2, p.K_d3] * tasks   # each task's main run in each of the preset's two spaces
     other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
-    # adaptive K (ksens_auto) counted at its start and bound, K_d3, plus its checks (every specialist scores
-    # every territory's): an upper bound, as it merges down
-    auto = [max(p.K_d2, p.K_d3)] if getattr(p, "ksens_auto", False) else []
+    # adaptive K (ksens_auto) counted at its start and bound (ges_auto_K), plus its checks (every specialist
+    # scores every territory's): an upper bound, as it merges down
+    auto = [p.ges_auto_K()] if getattr(p, "ksens_auto", False) else []
     checks = sum(K * K * p.ges_n_check() * probe_J for K in auto) * p.ges_max_rounds
     work = {"baselines": np.array([tasks * (1 + layout.e2e * layout.spaces) * p.ppo_steps, 0, 0]),
             "ges": ges(main_K),
