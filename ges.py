@@ -438,7 +438,10 @@ def _history_doc(space, config, seed, entries) -> dict:
 
 
 def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) -> dict:
-    """Alg. 1 lines 1-4: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k."""
+    """Alg. 1 lines 1-4: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k.
+
+    The start depends on the space, the config and the seed only, never on the task [ours]: two tasks on one
+    space start from the same mu, sigma and eta_k, so their runs differ only by what the task teaches."""
     mu = init_centers(config.init, config.K, space.d, rng_for(seed, INIT), config.fps_pool, config.lloyd_iters)
     sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
     eta = [sample_clipped(mu[k], sigma[k], rng_for(seed, INIT_DESIGNS, k), config.n_init_designs)
