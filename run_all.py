@@ -64,7 +64,8 @@ import tpe
 from report.paper import METHOD_NAMES, PAPER_TABLE2
 from report.figures import _plt, fig_curves, fig_ksens, gait_features, level_of, toe_heights
 from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_figures, report_ges_runs, report_header,
-                           report_ksens, report_table1, report_table2, report_table3, report_wall)
+                           report_ksens, report_table1, report_table2, report_table3, report_territories,
+                           report_wall)
 from runkit.clock import StageClock, stage_times
 from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import check_ours, check_output, git_commit, open_output
@@ -1082,7 +1083,7 @@ def report(run: Run, manifest: dict) -> str:
                 ("ges", lambda r: report_ges_runs(r, run.preset)), ("cost", report_cost), ("figures", report_figures)]
     lines = report_header(run.preset, run.seed, git_commit(HERE), manifest)
     if any(results.values()):
-        lines += report_claims(results)
+        lines += report_claims(results) + report_territories(results, run.out)
     for name, write in sections:
         if results[name]:
             lines += write(results[name])

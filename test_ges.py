@@ -2700,16 +2700,19 @@ def test_report_cross_seed_claims_hold_only_where_every_run_agrees(tmp_path):
 
 
 
-def test_report_cross_seed_splits_ges_gap_by_territory(tmp_path):
-    """territory_split: GES - e2e MLP over the test designs inside GES's final territories (max_k f_k > e^-2,
-    the 2-sigma contour) and outside, per cell. One territory at gcr 0.8 +- 0.01, spcf 0.05 +- 0.01: designs 1
-    and 1.9 sigma away are inside, 2.1 sigma away outside; a D3 design's l is read from l_f."""
+def test_report_splits_ges_gap_by_territory(tmp_path):
+    """territory_split: GES - e2e MLP (and each side's mean J) over the test designs inside GES's final territories
+    (max_k f_k > e^-2, the 2-sigma contour) and outside, per cell. One territory at gcr 0.8 +- 0.01, spcf 0.05 +-
+    0.01: designs 1 and 1.9 sigma away are inside, 2.1 sigma away outside; a D3 design's l is read from l_f.
+    REPORT.md's section and report.cross_seed's table say why in a line where GES > e2e MLP is not supported."""
     from report import cross_seed
+    from report.tables import report_territories, territory_split
     folder = tmp_path / "run"
     folder.mkdir()
-    ges_runs = {"obstacle-d2-K1-fps-lloyd": {"names": ["gcr", "spcf"], "mu": [[0.8, 0.05]], "sigma": [[0.01, 0.01]]},
+    ges_runs = {"obstacle-d2-K1-fps-lloyd": {"names": ["gcr", "spcf"], "mu": [[0.8, 0.05]], "sigma": [[0.01, 0.01]],
+                                             "coverage": 0.25},
                 "ramp-d3-K1-fps-lloyd": {"names": ["gcr", "spcf", "l"], "mu": [[0.8, 0.05, 0.3]],
-                                         "sigma": [[0.01, 0.01, 0.01]]}}
+                                         "sigma": [[0.01, 0.01, 0.01]], "coverage": 0.5}}
     rows = [("obstacle", "d2", 0.45, 0.81, 0.05, 10, 13), ("obstacle", "d2", 0.45, 0.8, 0.069, 10, 11),
             ("obstacle", "d2", 0.45, 0.8, 0.071, 10, 4), ("ramp", "d3", 0.321, 0.8, 0.05, 20, 20),
             ("ramp", "d3", 0.3, 0.8, 0.05, 20, 25)]
@@ -2717,12 +2720,21 @@ def test_report_cross_seed_splits_ges_gap_by_territory(tmp_path):
         w = csv_module.writer(fh)
         w.writerow(["task", "space", "l_f", "l_t", "gcr", "spcf", "baseline", "mlp", "moe", "ges"])
         w.writerows([[t, s, l, l, g, p, 0, m, 0, j] for t, s, l, g, p, m, j in rows])
-    run = {"stages": {"table2": {"cells": {}}, "ges": ges_runs}}
-    split = cross_seed.territory_split(run, str(folder))
-    assert split == {"obstacle-d2": [(2.0, 2), (-6.0, 1)], "ramp-d3": [(5.0, 1), (0.0, 1)]}
-    assert cross_seed.territory_split(run, str(tmp_path)) == {}   # no test_scores.csv
+    cells = {f"{t}-{s}": {m: {"scores": [r[5 if m == "mlp" else 6] for r in rows if r[:2] == (t, s)]}
+                          for m in ("baseline", "mlp", "moe", "ges")} for t, s in (("obstacle", "d2"), ("ramp", "d3"))}
+    run = {"stages": {"table2": {"cells": cells}, "ges": ges_runs}}
+    split = territory_split(run["stages"], str(folder))
+    assert split == {"obstacle-d2": [(2.0, 2, 12.0, 10.0), (-6.0, 1, 4.0, 10.0)],
+                     "ramp-d3": [(5.0, 1, 25.0, 20.0), (0.0, 1, 20.0, 20.0)]}
+    assert territory_split(run["stages"], str(tmp_path)) == {}   # no test_scores.csv
+    section = "\n".join(report_territories(run["stages"], str(folder)))
+    assert "| obstacle D2 | not resolved | 25.0% | 12.0 / 10.0 (+2.0, 2) | 4.0 / 10.0 (-6.0, 1) |" in section
+    assert ("- obstacle D2 (not resolved): on their own designs (2 of the test designs, inside the territories) the "
+            "specialists score 12.0 against the e2e MLP's 10.0 (+2.0); outside them (1 of the test designs, 75% of "
+            "the space uncovered) specialists trained elsewhere score 4.0 against 10.0 (-6.0).") in section
     table = cross_seed.split_table([run], ["seed 0"], [str(folder)])
     assert "| obstacle D2 | +2.0 (2) / -6.0 (1) |" in table and "| ramp D2 | - |" in table
+    assert any(line.startswith("- seed 0, ramp D3 (not resolved): on their own designs (1 of the") for line in table)
 
 
 def raw_numbers(out: str) -> dict:

@@ -10,18 +10,14 @@ test designs, so two seeds are two independent replications of the whole pipelin
 from __future__ import annotations
 
 import argparse
-import csv
 import json
-import math
 import os
 import sys
 import zlib
 
-import numpy as np
-
-from ges import GESConfig, log_f
 from report.paper import CELLS
-from report.tables import claim_rows, ges_comparisons, md_table, mean_ci
+from report.tables import (claim_rows, ges_comparisons, ges_of, md_table, mean_ci, territory_split,
+                           why_not)
 from runkit.stats import paired_comparison, verdict
 
 SUPPORTED, REVERSED, OPEN = "supported", "not supported", "not resolved"
@@ -121,44 +117,25 @@ def headline_counts(runs: list, labels: list) -> list:
     return out + [""]
 
 
-def territory_split(run: dict, folder: str) -> dict:
-    """Per Table II cell, GES - e2e MLP over the test designs inside GES's final territories (max_k f_k > tau,
-    eq. 8: the designs coverage counts) and over those outside, as (mean, n) pairs; {} without the run's
-    test_scores.csv. Says where GES's gap lies: outside, the router hands a design to a specialist trained on
-    other designs (coverage); inside, the specialists score below the e2e MLP on designs of their own."""
-    path = os.path.join(folder, "test_scores.csv")
-    t2, ges_runs = run["stages"].get("table2"), run["stages"].get("ges") or {}
-    if not (t2 and os.path.exists(path)):
-        return {}
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    out = {}
-    for t, s in CELLS:
-        g = next((g for name, g in ges_runs.items() if name.startswith(f"{t}-{s}-")), None)
-        mine = [r for r in rows if (r["task"], r["space"]) == (t, s)]
-        if g is None or not mine:
-            continue
-        cols = [{"l": "l_f"}.get(n, n) for n in g["names"]]   # D3's symmetric leg l is l_f = l_t
-        x = np.array([[float(r[c]) for c in cols] for r in mine])
-        inside = log_f(x, np.array(g["mu"]), np.array(g["sigma"])).max(axis=1) > math.log(GESConfig.tau)
-        d = np.array([float(r["ges"]) - float(r["mlp"]) for r in mine])
-        out[f"{t}-{s}"] = [(float(d[m].mean()) if m.any() else None, int(m.sum())) for m in (inside, ~inside)]
-    return out
-
-
 def split_table(runs: list, labels: list, folders: list) -> list:
-    """territory_split per run, one column each: 'inside (n) / outside (n)'."""
-    splits = [territory_split(run, f) for run, f in zip(runs, folders)]
+    """territory_split per run, one column each: 'inside (n) / outside (n)'; then, per run, why the headline is
+    not supported in each cell where it is not (report.tables.why_not)."""
+    splits = [territory_split(run["stages"], f) for run, f in zip(runs, folders)]
     if not any(splits):
         return []
-    part = lambda m, n: "-" if m is None else f"{m:+.1f} ({n})"   # noqa: E731
+    part = lambda d, n, *_: "-" if d is None else f"{d:+.1f} ({n})"   # noqa: E731
     rows = [[f"{t} {s.upper()}"] + [" / ".join(part(*p) for p in sp[f"{t}-{s}"]) if f"{t}-{s}" in sp else "-"
                                      for sp in splits] for t, s in CELLS]
+    why = [f"- {lab}, {t} {s.upper()} ({v}): {why_not(*sp[f'{t}-{s}'], ges_of(run['stages'], t, s)['coverage'])}."
+           for run, lab, sp in zip(runs, labels, splits) for t, s in CELLS if f"{t}-{s}" in sp
+           for v in [verdict(ges_comparisons(run["stages"]["table2"], t, s)["mlp"])] if v != SUPPORTED]
     return (["## Where GES meets the e2e MLP: inside its territories and outside", "",
              "GES - e2e MLP, mean over the test designs inside GES's final territories (max_k f_k > e^-2, the "
              "coverage criterion of eq. 8) / outside them (n designs). Outside, the router hands a design to a "
              "specialist trained on other designs.", ""]
-            + md_table(["cell"] + [f"{lab}: inside / outside" for lab in labels], rows))
+            + md_table(["cell"] + [f"{lab}: inside / outside" for lab in labels], rows)
+            + (["Where GES > e2e MLP is not supported, why (inside: the specialists' own designs):", ""] + why + [""]
+               if why else []))
 
 
 def run_line(run: dict, label: str, folder: str) -> str:

@@ -1,12 +1,15 @@
 """The tables and claims of REPORT.md: each cell "ours (paper)", each claim a verdict from paired tests."""
 from __future__ import annotations
 
+import csv
 import math
+import os
 import zlib
 
 import numpy as np
 
 import ballu
+from ges import GESConfig, log_f
 from report.paper import (CELLS, METHOD_NAMES, PAPER_COST, PAPER_KSENS_PEAK_K, PAPER_PEAK, PAPER_PEAK_DESIGN,
                           PAPER_TABLE1, PAPER_TABLE2, PAPER_TABLE3, PAPER_TPE_TRIALS, PAPER_WINS)
 from runkit.plan import rates_of, rates_source
@@ -372,3 +375,73 @@ def report_claims(results: dict) -> list:
              "From this run's numbers only: 'supported' = the claimed difference holds at p < 0.05 (Wilcoxon "
              "signed-rank, paired over the same test designs), 'not supported' = the opposite holds at p < 0.05, "
              "'not resolved' = neither.", ""] + md_table(["claim", "verdict", "evidence"], claim_rows(results)))
+
+
+# --- where GES meets the e2e MLP: the specialists' own designs and the rest -----------------------------------
+def ges_of(stages: dict, t: str, s: str) -> dict | None:
+    """The Table II GES run of a cell (stage ges's run named '<task>-<space>-K...'), None if there is none."""
+    return next((g for name, g in (stages.get("ges") or {}).items() if name.startswith(f"{t}-{s}-")), None)
+
+
+def territory_split(stages: dict, folder: str) -> dict:
+    """Per Table II cell, [inside, outside]: the test designs inside GES's final territories (max_k f_k > tau,
+    eq. 8: the designs coverage counts), where a specialist plays designs of its own territory, and those
+    outside, which the router hands to a specialist trained elsewhere. Each part is (GES - e2e MLP, n, GES J,
+    e2e MLP J), means over its designs (None, 0, None, None) if it has none; {} without the folder's
+    test_scores.csv (the run's raw Table II)."""
+    path = os.path.join(folder, "test_scores.csv")
+    if not (stages.get("table2") and os.path.exists(path)):
+        return {}
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    out = {}
+    for t, s in CELLS:
+        g, mine = ges_of(stages, t, s), [r for r in rows if (r["task"], r["space"]) == (t, s)]
+        if g is None or not mine:
+            continue
+        cols = [{"l": "l_f"}.get(n, n) for n in g["names"]]   # D3's symmetric leg l is l_f = l_t
+        x = np.array([[float(r[c]) for c in cols] for r in mine])
+        inside = log_f(x, np.array(g["mu"]), np.array(g["sigma"])).max(axis=1) > math.log(GESConfig.tau)
+        ges_j, mlp_j = (np.array([float(r[m]) for r in mine]) for m in ("ges", "mlp"))
+        out[f"{t}-{s}"] = [(float((ges_j - mlp_j)[m].mean()), int(m.sum()), float(ges_j[m].mean()),
+                            float(mlp_j[m].mean())) if m.any() else (None, 0, None, None) for m in (inside, ~inside)]
+    return out
+
+
+def why_not(part_in: tuple, part_out: tuple, coverage: float) -> str:
+    """Why GES > e2e MLP is not supported in a cell, in a line: how the specialists meet the e2e MLP (which
+    they start from) on their own designs, and what the designs outside the territories add."""
+    (d_in, n_in, g_in, m_in), (d_out, n_out, g_out, m_out) = part_in, part_out
+    parts = []
+    if n_in:
+        parts.append(f"on their own designs ({n_in} of the test designs, inside the territories) the specialists "
+                     f"score {g_in:.1f} against the e2e MLP's {m_in:.1f} ({d_in:+.1f})")
+    if n_out:
+        parts.append(f"outside them ({n_out} of the test designs, {1 - coverage:.0%} of the space uncovered) "
+                     f"specialists trained elsewhere score {g_out:.1f} against {m_out:.1f} ({d_out:+.1f})")
+    return "; ".join(parts)
+
+
+def report_territories(stages: dict, folder: str) -> list:
+    """REPORT.md's split of GES against the e2e MLP by GES's final territories, and for each cell where the
+    headline is not supported, the line saying why."""
+    split = territory_split(stages, folder)
+    if not split:
+        return []
+    fmt = lambda d, n, g, m: "-" if not n else f"{g:.1f} / {m:.1f} ({d:+.1f}, {n})"   # noqa: E731
+    rows, why = [], []
+    for t, s in CELLS:
+        if f"{t}-{s}" not in split:
+            continue
+        (p_in, p_out), cov = split[f"{t}-{s}"], ges_of(stages, t, s)["coverage"]
+        v = verdict(ges_comparisons(stages["table2"], t, s)["mlp"])
+        rows.append([f"{t} {s.upper()}", v, f"{cov:.1%}", fmt(*p_in), fmt(*p_out)])
+        if v != "supported":
+            why.append(f"- {t} {s.upper()} ({v}): {why_not(p_in, p_out, cov)}.")
+    return (["### Where GES meets the e2e MLP: the specialists' own designs and the rest", "",
+             "Mean J over the test designs inside GES's final territories (max_k f_k > e^-2, the coverage criterion "
+             "of eq. 8), each played by a specialist of its own territory, and outside them, handed by the router "
+             "to a specialist trained elsewhere: GES / e2e MLP (GES - e2e MLP, designs).", ""]
+            + md_table(["cell", "GES > e2e MLP", "coverage", "inside", "outside"], rows)
+            + (["Where GES > e2e MLP is not supported, why:", ""] + why + [""] if why else []))
+
