@@ -16,8 +16,7 @@ import sys
 import zlib
 
 from report.paper import CELLS
-from report.tables import (claim_rows, ges_comparisons, ges_of, md_table, mean_ci, territory_split,
-                           why_not)
+from report.tables import claim_rows, ges_comparisons, md_table, mean_ci, territory_split, why_lines
 from runkit.stats import paired_comparison, verdict
 
 SUPPORTED, REVERSED, OPEN = "supported", "not supported", "not resolved"
@@ -119,16 +118,14 @@ def headline_counts(runs: list, labels: list) -> list:
 
 def split_table(runs: list, labels: list, folders: list) -> list:
     """territory_split per run, one column each: 'inside (n) / outside (n)'; then, per run, why the headline is
-    not supported in each cell where it is not (report.tables.why_not)."""
+    not supported in each cell where it is not (report.tables.why_lines)."""
     splits = [territory_split(run["stages"], f) for run, f in zip(runs, folders)]
     if not any(splits):
         return []
     part = lambda d, n, *_: "-" if d is None else f"{d:+.1f} ({n})"   # noqa: E731
     rows = [[f"{t} {s.upper()}"] + [" / ".join(part(*p) for p in sp[f"{t}-{s}"]) if f"{t}-{s}" in sp else "-"
                                      for sp in splits] for t, s in CELLS]
-    why = [f"- {lab}, {t} {s.upper()} ({v}): {why_not(*sp[f'{t}-{s}'], ges_of(run['stages'], t, s)['coverage'])}."
-           for run, lab, sp in zip(runs, labels, splits) for t, s in CELLS if f"{t}-{s}" in sp
-           for v in [verdict(ges_comparisons(run["stages"]["table2"], t, s)["mlp"])] if v != SUPPORTED]
+    why = [line for run, lab, sp in zip(runs, labels, splits) for line in why_lines(run["stages"], sp, f"{lab}, ")]
     return (["## Where GES meets the e2e MLP: inside its territories and outside", "",
              "GES - e2e MLP, mean over the test designs inside GES's final territories (max_k f_k > e^-2, the "
              "coverage criterion of eq. 8) / outside them (n designs). Outside, the router hands a design to a "

@@ -422,6 +422,18 @@ def why_not(part_in: tuple, part_out: tuple, coverage: float) -> str:
     return "; ".join(parts)
 
 
+def why_lines(stages: dict, split: dict, label: str = "") -> list:
+    """'- <label>cell (verdict): why_not(...).' for each cell of `split` where GES > e2e MLP is not supported."""
+    out = []
+    for t, s in CELLS:
+        if f"{t}-{s}" in split:
+            v = verdict(ges_comparisons(stages["table2"], t, s)["mlp"])
+            if v != "supported":
+                out.append(f"- {label}{t} {s.upper()} ({v}): "
+                           f"{why_not(*split[f'{t}-{s}'], ges_of(stages, t, s)['coverage'])}.")
+    return out
+
+
 def report_territories(stages: dict, folder: str) -> list:
     """REPORT.md's split of GES against the e2e MLP by GES's final territories, and for each cell where the
     headline is not supported, the line saying why."""
@@ -429,15 +441,10 @@ def report_territories(stages: dict, folder: str) -> list:
     if not split:
         return []
     fmt = lambda d, n, g, m: "-" if not n else f"{g:.1f} / {m:.1f} ({d:+.1f}, {n})"   # noqa: E731
-    rows, why = [], []
-    for t, s in CELLS:
-        if f"{t}-{s}" not in split:
-            continue
-        (p_in, p_out), cov = split[f"{t}-{s}"], ges_of(stages, t, s)["coverage"]
-        v = verdict(ges_comparisons(stages["table2"], t, s)["mlp"])
-        rows.append([f"{t} {s.upper()}", v, f"{cov:.1%}", fmt(*p_in), fmt(*p_out)])
-        if v != "supported":
-            why.append(f"- {t} {s.upper()} ({v}): {why_not(p_in, p_out, cov)}.")
+    rows = [[f"{t} {s.upper()}", verdict(ges_comparisons(stages["table2"], t, s)["mlp"]),
+             f"{ges_of(stages, t, s)['coverage']:.1%}"] + [fmt(*p) for p in split[f"{t}-{s}"]]
+            for t, s in CELLS if f"{t}-{s}" in split]
+    why = why_lines(stages, split)
     return (["### Where GES meets the e2e MLP: the specialists' own designs and the rest", "",
              "Mean J over the test designs inside GES's final territories (max_k f_k > e^-2, the coverage criterion "
              "of eq. 8), each played by a specialist of its own territory, and outside them, handed by the router "
