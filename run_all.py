@@ -647,6 +647,46 @@ def score_sets(run: Run, jobs: list, label: str) -> dict:
     return out
 
 
+# --- the step-matched e2e MLP [ours; the paper has no such control] -------------------------------------------
+@dataclass
+class MatchedJob(CellJob):
+    """The cell's e2e MLP trained on, on the same uniform designs, for the steps one of its GES specialists
+    trained (`steps`, warm start included): is GES's lead specialisation or steps? Trains, then scores the test
+    designs as Table II does (score set test-<cell>-mlp_matched). docs/ges_schedule."""
+    steps: int = 0
+
+    def __call__(self) -> list:
+        run, name = Run(self.out, self.preset, self.seed, 1), f"{MATCHED}-{self.task}-{self.sp}"
+        warm = ppo.scored_path(policy_ckpt(run, f"mlp-{self.task}-{self.sp}"), self.preset.policy_rule)
+        space = space_of(self.preset, self.task, self.sp)
+        train_policy(policy_ckpt(run, name), "mlp", self.task, ballu.UniformDesign(space), self.steps, self.preset,
+                     derive_seed(self.seed, "ppo", name), name, init_ckpt=warm)
+        return ScoreSet(self.out, self.preset, self.seed, self.task, self.sp, MATCHED)()
+
+
+MATCHED = "mlp_matched"   # the step-matched e2e MLP's method name (policies/, scores/, results)
+
+
+def stage_matched(run: Run) -> dict:
+    """Each cell's step-matched e2e MLP: warm-started from the cell's e2e MLP (the policy GES's specialists start
+    from) and trained as many steps as one of the cell's main GES specialists (its rounds: Preset.ges_steps)."""
+    ges_res, out = stage_result(run, "ges"), {}
+    jobs = []
+    for t in TASKS:
+        for s in SPACES:
+            warm = ppo.scored_path(policy_ckpt(run, f"mlp-{t}-{s}"), run.preset.policy_rule)
+            steps = ckpt_steps(warm) + run.preset.ges_steps(ges_res[run.main_ges(t, s)]["rounds"])
+            jobs.append(MatchedJob(run.out, run.preset, run.seed, t, s, MATCHED, steps))
+    prog = Progress("step-matched e2e MLPs", len(jobs), every=0, parallel=run.workers)
+    with run.pool() as ex:
+        futures = [ex.submit(job) for job in jobs]
+        for i, (job, fut) in enumerate(zip(jobs, futures)):
+            sc = np.array(fut.result())
+            out[f"{job.task}-{job.sp}"] = {"steps": job.steps, **summary(sc)}
+            prog(i + 1, f"{job.task} {job.sp}: mean {sc.mean():.2f}")
+    return out
+
+
 @dataclass
 class SearchSpec(CellJob):
     """One TPE design search maximising a method's J(theta)."""
@@ -1060,6 +1100,7 @@ def stage_figures(run: Run) -> dict:
 
 
 STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges": (stage_ges, ()),
+          "matched": (stage_matched, ("baselines", "ges")),
           "table2": (stage_table2, ("baselines", "ges")), "table3": (stage_table3, ("ges", "table2")),
           "ksens": (stage_ksens, ("ges", "table2")), "cost": (stage_cost, ("ges", "table2")),
           "figures": (stage_figures, ("table2", "table3", "ksens"))}

@@ -1,0 +1,143 @@
+"""Is GES's lead specialisation or steps? run_all's step-matched e2e MLP (stage `matched`) on a committed run.
+
+    python -m experiments.step_matched prepare docs/overnight/seed0 --state 9eb76ac:docs/overnight/seed0/state \
+        --out ~/runs/sm/seed0
+    python -m experiments.step_matched prepare docs/overnight/seed1 --state d06d56e:docs/overnight/seed1/state.tar \
+        --out ~/runs/sm/seed1
+    python -m experiments.step_matched run ~/runs/sm/seed0 [--workers 2]       # resumable: rerun to go on
+    python -m experiments.step_matched table docs/overnight/seed0 ~/runs/sm/seed0 [...pairs] [--out MD]
+
+A committed run keeps its e2e MLPs without optimiser state; the ones GES warm-started from (optimiser, normaliser,
+curriculum) are in git history. `prepare` copies them and the run's GES stage into a work folder, `run` trains and
+scores each cell's step-matched e2e MLP there exactly as run_all's stage does, `table` sets it beside the run's
+committed GES and e2e MLP test scores (same designs, paired). Results: docs/ges_schedule/.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import os
+import subprocess
+import sys
+import tarfile
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, HERE)
+
+import run_all  # noqa: E402
+from runkit.files import write_json  # noqa: E402
+from runkit.stats import paired_comparison, verdict  # noqa: E402
+
+
+def git_show(spec: str) -> bytes:
+    return subprocess.run(["git", "-C", HERE, "show", spec], check=True, capture_output=True).stdout
+
+
+def prepare(run_folder: str, state: str, out: str) -> None:
+    """The e2e MLPs with optimiser state from `state` (commit:folder or commit:file.tar) and the run's manifest and
+    GES stage from its results.json, into `out`."""
+    commit, path = state.split(":", 1)
+    os.makedirs(out, exist_ok=True)
+    wanted = [f"mlp-{t}-{s}" for t in run_all.TASKS for s in run_all.SPACES]
+    if path.endswith(".tar"):
+        with tarfile.open(fileobj=io.BytesIO(git_show(f"{commit}:{path}"))) as tar:
+            for m in tar.getmembers():
+                parts = m.name.split("/")
+                if m.isfile() and len(parts) == 4 and parts[1] == "policies" and parts[2] in wanted:
+                    dst = os.path.join(out, "policies", parts[2], parts[3])
+                    os.makedirs(os.path.dirname(dst), exist_ok=True)
+                    with open(dst, "wb") as fh:
+                        fh.write(tar.extractfile(m).read())
+    else:
+        for name in wanted:
+            for f in ("policy.pt", "policy_best.pt", "log.csv"):
+                dst = os.path.join(out, "policies", name, f)
+                os.makedirs(os.path.dirname(dst), exist_ok=True)
+                with open(dst, "wb") as fh:
+                    fh.write(git_show(f"{commit}:{path}/policies/{name}/{f}"))
+    res = json.load(open(os.path.join(run_folder, "results.json")))
+    write_json(os.path.join(out, "stages", "ges.json"), {"stage": "ges", "result": res["stages"]["ges"]})
+    write_json(os.path.join(out, "manifest.json"), res["manifest"])
+    for name in wanted:   # the copied e2e MLP must be the committed one (same weights)
+        a = run_all.ppo.load_checkpoint(os.path.join(out, "policies", name, "policy_best.pt"))
+        b = run_all.ppo.load_checkpoint(os.path.join(run_folder, "policies", name, "policy_best.pt"))
+        same = all(np.array_equal(a["policy"][k].numpy(), b["policy"][k].numpy()) for k in b["policy"])
+        if not same or a["steps"] != b["steps"]:
+            raise SystemExit(f"{name}: the checkpoint at {state} is not the committed one")
+        print(f"{name}: {a['steps']:,} steps, optimiser state {'optimizer' in a}")
+
+
+def run(out: str, workers: int) -> None:
+    man = json.load(open(os.path.join(out, "manifest.json")))
+    r = run_all.Run(out, run_all.PRESETS[man["preset"]], int(man["seed"]), workers)
+    run_all.run_stage(r, "matched")
+
+
+def cell_rows(run_folder: str, work: str) -> list:
+    """Per cell: J of GES, the e2e MLP and the step-matched e2e MLP on the run's test designs, paired."""
+    rows = list(csv.DictReader(open(os.path.join(run_folder, "test_scores.csv"))))
+    matched = json.load(open(os.path.join(work, "stages", "matched.json")))["result"]
+    out = []
+    for t in run_all.TASKS:
+        for s in run_all.SPACES:
+            cell = [r for r in rows if r["task"] == t and r["space"] == s]
+            g, m = (np.array([float(r[k]) for r in cell]) for k in ("ges", "mlp"))
+            mm = np.array(matched[f"{t}-{s}"]["scores"])
+            out.append(dict(cell=f"{t} {s.upper()}", unit=run_all.UNIT[t], steps=matched[f"{t}-{s}"]["steps"],
+                            ges=g.mean(), mlp=m.mean(), matched=mm.mean(),
+                            vs_mlp=paired_comparison(g, m), vs_matched=paired_comparison(g, mm),
+                            matched_vs_mlp=paired_comparison(mm, m)))
+    return out
+
+
+def fmt(c: dict) -> str:
+    return f"{c['diff']:+.1f} [{c['diff_lo']:+.1f}, {c['diff_hi']:+.1f}], p={c['p']:.2g}, {verdict(c)}"
+
+
+def table(pairs: list) -> str:
+    lines = ["| seed | cell | steps (matched) | GES | e2e MLP | e2e MLP, step-matched | GES - e2e MLP | "
+             "GES - step-matched | step-matched - e2e MLP |", "|---" * 9 + "|"]
+    for run_folder, work in pairs:
+        seed = json.load(open(os.path.join(work, "manifest.json")))["seed"]
+        for r in cell_rows(run_folder, work):
+            lines.append(f"| {seed} | {r['cell']} ({r['unit']}) | {r['steps']:,} | {r['ges']:.1f} | {r['mlp']:.1f} | "
+                         f"{r['matched']:.1f} | {fmt(r['vs_mlp'])} | {fmt(r['vs_matched'])} | "
+                         f"{fmt(r['matched_vs_mlp'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("prepare")
+    p.add_argument("run_folder")
+    p.add_argument("--state", required=True, help="COMMIT:PATH of the run's resume state (folder or .tar)")
+    p.add_argument("--out", required=True)
+    p = sub.add_parser("run")
+    p.add_argument("out")
+    p.add_argument("--workers", type=int, default=2)
+    p = sub.add_parser("table")
+    p.add_argument("pairs", nargs="+", help="RUN_FOLDER WORK_FOLDER, repeated")
+    p.add_argument("--out")
+    a = ap.parse_args(argv)
+    if a.cmd == "prepare":
+        prepare(a.run_folder, a.state, os.path.expanduser(a.out))
+    elif a.cmd == "run":
+        run(os.path.expanduser(a.out), a.workers)
+    else:
+        if len(a.pairs) % 2:
+            ap.error("table: give RUN_FOLDER WORK_FOLDER pairs")
+        text = table([(a.pairs[i], os.path.expanduser(a.pairs[i + 1])) for i in range(0, len(a.pairs), 2)])
+        if a.out:
+            open(a.out, "w").write(text)
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
