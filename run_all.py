@@ -650,9 +650,9 @@ def score_sets(run: Run, jobs: list, label: str) -> dict:
 # --- the step-matched e2e MLP [ours; the paper has no such control] -------------------------------------------
 @dataclass
 class MatchedJob(CellJob):
-    """The cell's e2e MLP trained on, on the same uniform designs, for the steps one of its GES specialists
-    trained (`steps`, warm start included): is GES's lead specialisation or steps? Trains, then scores the test
-    designs as Table II does (score set test-<cell>-mlp_matched). docs/ges_schedule."""
+    """The cell's e2e MLP trained on, on the same uniform designs, to `steps` (stage_matched): is GES's lead
+    specialisation or steps? Trains, then scores the test designs as Table II does (score set
+    test-<cell>-mlp_matched). docs/ges_schedule."""
     steps: int = 0
 
     def __call__(self) -> list:
@@ -668,8 +668,10 @@ MATCHED = "mlp_matched"   # the step-matched e2e MLP's method name (policies/, s
 
 
 def stage_matched(run: Run) -> dict:
-    """Each cell's step-matched e2e MLP: warm-started from the cell's e2e MLP (the policy GES's specialists start
-    from) and trained as many steps as one of the cell's main GES specialists (its rounds: Preset.ges_steps)."""
+    """Each cell's step-matched e2e MLP [ours; the paper has no such control]: the cell's e2e MLP (its scored
+    checkpoint, optimiser included: what GES's specialists warm-start from) trained on for the steps one of the
+    cell's main GES specialists trains (Preset.ges_steps of its rounds). With ges_warm_start (quick, overnight)
+    it ends at each specialist's steps; without, it is the e2e MLP given a specialist's steps more."""
     ges_res, out = stage_result(run, "ges"), {}
     jobs = []
     for t in TASKS:
@@ -1119,7 +1121,8 @@ def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
     times = stage_times(run.path("stage_seconds.json"))
-    sections = [("table1", lambda r: report_table1(r)), ("table2", lambda r: report_table2(r, run.preset)),
+    sections = [("table1", lambda r: report_table1(r)),
+                ("table2", lambda r: report_table2(r, run.preset, results["matched"])),
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", lambda r: report_ksens(r, run.preset)),
                 ("ges", lambda r: report_ges_runs(r, run.preset)), ("cost", report_cost), ("figures", report_figures)]
     lines = report_header(run.preset, run.seed, git_commit(HERE), manifest)

@@ -2509,6 +2509,30 @@ def test_run_all_smoke_writes_every_table_and_figure(smoke_run):
 
 
 @pytest.mark.slow
+def test_run_all_matched_e2e_mlp_trains_a_specialists_steps(smoke_run):
+    """The step-matched e2e MLP of each cell starts from the checkpoint its GES specialists start from and ends
+    at the steps one specialist ends at (the warm start's plus Preset.ges_steps of the run's rounds); it is
+    scored on the cell's test designs, a Table II column, a head-to-head column and a claim row."""
+    res = read_json(os.path.join(smoke_run, "results.json"))["stages"]
+    for t in run_all.TASKS:
+        for s in run_all.SPACES:
+            g = res["ges"][run_all.ges_name(t, s, run_all.SMOKE.K_d2 if s == "d2" else run_all.SMOKE.K_d3,
+                                            "fps+lloyd")]
+            warm = ppo.load_checkpoint(g["warm_start"]) if g["warm_start"] else None
+            mine = ppo.load_checkpoint(os.path.join(smoke_run, "policies", f"mlp_matched-{t}-{s}", "policy.pt"))
+            spec = glob.glob(os.path.join(smoke_run, g["run_dir"], "ckpt", f"spec0_round{g['rounds'] - 1:02d}.ckpt"))
+            mlp = ppo.load_checkpoint(os.path.join(smoke_run, "policies", f"mlp-{t}-{s}", "policy_best.pt"))
+            assert mine["steps"] == res["matched"][f"{t}-{s}"]["steps"]
+            assert mine["steps"] == mlp["steps"] + run_all.SMOKE.ges_steps(g["rounds"])
+            assert ppo.load_checkpoint(spec[0])["steps"] == (warm["steps"] if warm else 0) + run_all.SMOKE.ges_steps(
+                g["rounds"])   # with ges_warm_start (quick, overnight) the two end at the same steps
+            assert len(res["matched"][f"{t}-{s}"]["scores"]) == run_all.SMOKE.n_test
+    rep = read_text(os.path.join(smoke_run, "REPORT.md"))
+    assert "| e2e MLP, step-matched |" in rep and "| vs e2e MLP, step-matched |" in rep
+    assert rep.count("GES > the e2e MLP at a specialist's steps") == 4
+
+
+@pytest.mark.slow
 def test_run_all_ges_runs_side_by_side_give_the_inline_numbers(smoke_run, tmp_path, monkeypatch):
     """With a process pool of 2 a stage's GES runs go side by side (ges_runs' threads): a simulated kill in one
     run stops the stage (the others after their round), and the rerun gives exactly the inline run's GES states
@@ -3311,6 +3335,7 @@ def test_runkit_plan_of_a_small_preset_by_hand():
     assert steps == {
         "baselines": (1000, 0, 0),      # 2 tasks x (1 baseline design + 2 e2e x 2 spaces) x 100
         "ges": (720, 0, 1800),          # 18 specialists (3 + 6 per task) x 40; x 5 probes x 10 steps x 2 rounds
+        "matched": (160, 320, 0),       # 4 cells' e2e MLPs x a specialist's 40 steps; 4 cells x 4 designs x 20
         "table2": (0, 3120, 0),         # (2 + 4 cells x 4 methods x 4 designs + 4 x 3 searches x 6 trials) x 20
                                         # + 4 x 3 peaks x 30
         "table3": (120, 80, 300),       # grid's K = 3 run: 3 x 40; 4 designs x 20; 3 x 5 x 10 x 2
@@ -3318,7 +3343,8 @@ def test_runkit_plan_of_a_small_preset_by_hand():
         "cost": (300, 60, 0),           # 3 BO trials: 3 x 100 PPO steps, 3 x 20 score steps
         "figures": (0, 0, 0)}
     seconds = {k: 3600 * v["hours"] for k, v in rows.items()}
-    assert seconds == pytest.approx({"baselines": 10.0, "ges": 25.2, "table2": 31.2, "table3": 5.0, "ksens": 2.2,
+    assert seconds == pytest.approx({"baselines": 10.0, "ges": 25.2, "matched": 4.8, "table2": 31.2, "table3": 5.0,
+                                     "ksens": 2.2,
                                      "cost": 3.6, "figures": 40.0})   # figures: FIGURES_S, a fixed cost
     # adaptive K adds a run at its start and bound K = max(K_d2, K_d3) = 6 (ksens_auto_K None): 6 x 40; 4 x 20; probes 6 x 5 x 10 x 2 and its
     # checks, every one of 6 specialists scoring 5 (= F) of each of 6 territories' designs, 10 steps, 2 rounds

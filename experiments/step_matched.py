@@ -6,11 +6,13 @@
         --out ~/runs/sm/seed1
     python -m experiments.step_matched run ~/runs/sm/seed0 [--workers 2]       # resumable: rerun to go on
     python -m experiments.step_matched table docs/overnight/seed0 ~/runs/sm/seed0 [...pairs] [--out MD]
+    python -m experiments.step_matched merge docs/overnight/seed0 ~/runs/sm/seed0   # into the committed run
 
 A committed run keeps its e2e MLPs without optimiser state; the ones GES warm-started from (optimiser, normaliser,
 curriculum) are in git history. `prepare` copies them and the run's GES stage into a work folder, `run` trains and
 scores each cell's step-matched e2e MLP there exactly as run_all's stage does, `table` sets it beside the run's
-committed GES and e2e MLP test scores (same designs, paired). Results: docs/ges_schedule/.
+committed GES and e2e MLP test scores (same designs, paired), `merge` adds it to the committed run's results.json
+and REPORT.md (then `python -m report.cross_seed` renews CLAIMS.md). Results: docs/ges_schedule/.
 """
 from __future__ import annotations
 
@@ -77,6 +79,42 @@ def run(out: str, workers: int) -> None:
     run_all.run_stage(r, "matched")
 
 
+def merge(run_folder: str, work: str) -> None:
+    """The step-matched stage of `work` into the committed run `run_folder`: its results.json gains the stage, its
+    REPORT.md is rewritten from results.json (Table II's column, the head-to-head's, the claim rows), and each
+    cell's scored policy is kept (optimiser state dropped) in policies/mlp_matched-<cell>/policy_best.pt. The
+    run's wall table is unchanged: the stage ran afterwards, untimed (its training logs: docs/ges_schedule)."""
+    import shutil
+    import tempfile
+    import torch
+    res = json.load(open(os.path.join(run_folder, "results.json")))
+    res["stages"]["matched"] = json.load(open(os.path.join(work, "stages", "matched.json")))["result"]
+    tmp = tempfile.mkdtemp(prefix="step_matched_")
+    try:
+        for name, result in res["stages"].items():
+            write_json(os.path.join(tmp, "stages", f"{name}.json"), {"stage": name, "result": result})
+        write_json(os.path.join(tmp, "stage_seconds.json"), res["stage_seconds"])
+        for f in ("manifest.json", "calibration.json", "test_scores.csv"):
+            shutil.copy(os.path.join(run_folder, f), tmp)
+        for d in ("ges", "policies"):   # territory split and training rate read them
+            os.symlink(os.path.abspath(os.path.join(run_folder, d)), os.path.join(tmp, d))
+        man = res["manifest"]
+        run_all.report(run_all.Run(tmp, run_all.PRESETS[man["preset"]], int(man["seed"]), 2), man)
+        for f in ("REPORT.md", "results.json"):
+            shutil.copy(os.path.join(tmp, f), os.path.join(run_folder, f))
+    finally:
+        shutil.rmtree(tmp)
+    for t in run_all.TASKS:
+        for s in run_all.SPACES:
+            name = f"{run_all.MATCHED}-{t}-{s}"
+            st = run_all.ppo.load_checkpoint(os.path.join(work, "policies", name, "policy_best.pt"))
+            st = {k: v for k, v in st.items() if k not in ("optimizer", "run")}
+            dst = os.path.join(run_folder, "policies", name, "policy_best.pt")
+            os.makedirs(os.path.dirname(dst), exist_ok=True)
+            torch.save(st, dst)
+            print(f"{dst}: {st['steps']:,} steps")
+
+
 def cell_rows(run_folder: str, work: str) -> list:
     """Per cell: J of GES, the e2e MLP and the step-matched e2e MLP on the run's test designs, paired."""
     rows = list(csv.DictReader(open(os.path.join(run_folder, "test_scores.csv"))))
@@ -121,6 +159,9 @@ def main(argv=None) -> int:
     p = sub.add_parser("run")
     p.add_argument("out")
     p.add_argument("--workers", type=int, default=2)
+    p = sub.add_parser("merge")
+    p.add_argument("run_folder")
+    p.add_argument("work")
     p = sub.add_parser("table")
     p.add_argument("pairs", nargs="+", help="RUN_FOLDER WORK_FOLDER, repeated")
     p.add_argument("--out")
@@ -129,6 +170,8 @@ def main(argv=None) -> int:
         prepare(a.run_folder, a.state, os.path.expanduser(a.out))
     elif a.cmd == "run":
         run(os.path.expanduser(a.out), a.workers)
+    elif a.cmd == "merge":
+        merge(a.run_folder, os.path.expanduser(a.work))
     else:
         if len(a.pairs) % 2:
             ap.error("table: give RUN_FOLDER WORK_FOLDER pairs")

@@ -128,12 +128,15 @@ def report_table1(table1: dict) -> list:
         ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {DESIGN_WORDS}", ""]
 
 
-def report_table2(table2: dict, preset) -> list:
+def report_table2(table2: dict, preset, matched: dict | None = None) -> list:
+    """Table II, its TPE peaks and the head-to-head; with the `matched` stage's result, the step-matched e2e MLP
+    as a column of each (ours, not in the paper)."""
     means = []
     for t, s in CELLS:
         scores, paper = table2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
         means.append([t, s.upper(), cell(table2["design"][t], paper["design"])]
-                     + [cell_ci(scores[m]["scores"], paper.get(m)) for m in ("baseline", "mlp", "moe", "ges")])
+                     + [cell_ci(scores[m]["scores"], paper.get(m)) for m in ("baseline", "mlp", "moe", "ges")]
+                     + ([cell_ci(matched[f"{t}-{s}"]["scores"], None)] if matched else []))
     peaks = []
     for t, s in CELLS:
         for m in ("mlp", "moe", "ges"):
@@ -147,12 +150,16 @@ def report_table2(table2: dict, preset) -> list:
     for t, s in CELLS:
         cmps = ges_comparisons(table2, t, s)
         wins_rows.append([t, s.upper()] + [comparison_cell(cmps[m], PAPER_WINS[(t, s)].get(m))
-                                           for m in ("baseline", "mlp", "moe")])
+                                           for m in ("baseline", "mlp", "moe")]
+                         + ([comparison_cell(matched_comparison(table2, matched, t, s))] if matched else []))
+    mcol = ["e2e MLP, step-matched"] if matched else []
     return ([f"## Table II: mean score J over {preset.n_test} uniform test designs (cm obstacle, deg ramp)", "",
              "Cells: ours [95 % bootstrap CI over the test designs] (paper). The paper gives no uncertainty.", ""]
-            + md_table(["task", "space", "baseline design", "baseline policy", "e2e MLP", "e2e MoE", "GES"], means)
+            + md_table(["task", "space", "baseline design", "baseline policy", "e2e MLP", "e2e MoE", "GES"] + mcol,
+                       means)
             + ["'baseline design' = the baseline design's own policy at the baseline design (1 design); "
-               "'baseline policy' = that policy on the test designs (not in the paper).", "",
+               "'baseline policy' = that policy on the test designs (not in the paper)."
+               + (f" {MATCHED_WORDS}" if matched else ""), "",
                f"### Peaks found by TPE ({preset.tpe_trials} trials maximising each method's J)", "",
                f"Each search maximises the {preset.score_episodes}-episode J; its best design is then scored once "
                f"more with a longer J of {preset.peak_episodes or '-'} episodes from the same start level (ours: the "
@@ -166,7 +173,20 @@ def report_table2(table2: dict, preset) -> list:
             + ["### Head-to-head: GES against each baseline on the same test designs", "",
                "Cells: mean difference GES - baseline [95 % paired-bootstrap CI], Wilcoxon signed-rank p; % of "
                "designs where GES scores higher [95 % CI] (paper's %), % ties.", ""]
-            + md_table(["task", "space", "vs baseline policy", "vs e2e MLP", "vs e2e MoE"], wins_rows))
+            + md_table(["task", "space", "vs baseline policy", "vs e2e MLP", "vs e2e MoE"]
+                       + [f"vs {c}" for c in mcol], wins_rows))
+
+
+# [ours] the step-matched e2e MLP (run_all's stage `matched`), in the report's words
+MATCHED_WORDS = ("'e2e MLP, step-matched' = the e2e MLP trained on from the checkpoint GES's specialists start from, "
+                 "for as many steps as one specialist trains (ours, not in the paper: is GES's lead "
+                 "specialisation or steps? docs/ges_schedule).")
+
+
+def matched_comparison(table2: dict, matched: dict, task: str, sp: str) -> dict:
+    """GES against the step-matched e2e MLP of one cell, paired over the same test designs."""
+    return paired_comparison(table2["cells"][f"{task}-{sp}"]["ges"]["scores"], matched[f"{task}-{sp}"]["scores"],
+                             seed=zlib.crc32(f"{task}{sp}matched".encode()))
 
 
 def report_table3(table3: dict, preset) -> list:
@@ -339,6 +359,11 @@ def claim_rows(results: dict) -> list:
                 cmp = ges_comparisons(t2, t, s)[m]
                 rows.append([f"GES > {name}, {t} {s.upper()}", verdict(cmp),
                              f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
+    if t2 and results.get("matched"):
+        for t, s in CELLS:
+            cmp = matched_comparison(t2, results["matched"], t, s)
+            rows.append([f"GES > the e2e MLP at a specialist's steps, {t} {s.upper()} (ours)", verdict(cmp),
+                         f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
     fig = results.get("figures")
     if fig:
         ent = fig["moe_gate_entropy"]

@@ -33,7 +33,7 @@ SCORE_PLAYED = 0.66
 ALONE_SPEEDUP = 2 / 1.68
 # [ours] fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import
 # torch and pybullet), once per pool a stage starts, and the figures stage (docs/presets.md).
-POOLS = {"baselines": 1, "ges": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
+POOLS = {"baselines": 1, "ges": 1, "matched": 1, "table2": 2, "table3": 2, "ksens": 2, "cost": 1}
 POOL_START_S, FIGURES_S = 2.0, 40.0
 
 
@@ -87,6 +87,8 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     checks = sum(K * K * p.ges_n_check() * probe_J for K in auto) * p.ges_max_rounds
     work = {"baselines": np.array([tasks * (1 + layout.e2e * layout.spaces) * p.ppo_steps, 0, 0]),
             "ges": ges(main_K),
+            # the step-matched e2e MLP: each cell's e2e MLP trained a specialist's steps on (round cap), then scored
+            "matched": np.array([cells * p.ges_steps(p.ges_max_rounds), cells * p.n_test * J, 0]),
             "table2": np.array([0, (tasks + cells * layout.methods * p.n_test + cells * searched * p.tpe_trials) * J
                                 + cells * searched * peak_J, 0]),
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
