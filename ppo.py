@@ -5,11 +5,14 @@ Read top to bottom:
   2. running observation normalisation
   3. actor-critics: `MLPActorCritic` (e2e MLP and every GES specialist), `MoEActorCritic` (e2e MoE)
   4. GAE and the PPO update (clipped surrogate, value loss, entropy bonus, adaptive-KL learning rate)
-  5. the trainer: checkpoints (the last, and the best by training level: `scored_path`), `rollout` (here or in
-     the env's workers), `start_run` (resume, warm start or fresh),
-     `TrainLog` (CSV + progress line), `train(...)` (rollout -> GAE -> PPO update, curriculum), learning curve
-  6. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
-  7. benchmark: end-to-end training against stepping the env alone (`python ppo.py --bench`)
+  5. the training loop: `train(...)`, each update rollout -> GAE -> PPO update -> log, curriculum, a checkpoint
+     every cfg.ckpt_every updates
+  6. the loop's parts: `start_run` (fresh, warm start or resume), `rollout` (here or in the env's workers),
+     `TrainLog` (CSV + progress line), learning curve
+  7. checkpoints and resume: the last, and the best by training level (`scored_path`); a killed run resumed
+     exactly; files written by older code
+  8. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
+  9. benchmark: end-to-end training against stepping the env alone (`python ppo.py --bench`)
 
 This module imports no env: training one policy on BALLU is `python -m experiments.ppo_ballu train`, comparing
 PPO settings on it `python -m experiments.ppo_protocol` (docs/ppo_protocol).
@@ -49,20 +52,21 @@ class PPOConfig:
     actions, reward form and scale, observation clip, gradient clip, learning-rate cap and curriculum start on
     BALLU (3 seeds where it mattered): only the learning-rate cap (max_lr) and the ramp's spread start
     (ballu.train_start_levels) beat the facts' values beyond the seed spread, so every other value is the facts'
-    and every lever stays an option, off by default."""
+    and every lever stays an option, off by default.
+
+    max_lr: the facts' 1e-2 (rsl_rl's) let the rate jump 1e-5 <-> 1e-2 within a few updates; the cap of 1e-3 gave
+    ramp J +6.8 +- 2.7 deg at 2 M steps, 3 seeds, on two CPU models; the obstacle showed no difference beyond its
+    scoring noise (docs/ppo_protocol)."""
     hidden: tuple = (128, 64, 32)      # [paper] Sec. V-A actor and critic MLP, ELU
     init_std: float = 0.5              # [facts] initial action std (state independent)
     init_action_mean: float = 0.0      # [ours] bias of the actor's last layer: 0.5 centres BALLU's servo range
     lr: float = 1e-4                   # [facts] initial learning rate, then adaptive KL
     desired_kl: float = 0.01           # [facts] adaptive-KL target
-    max_lr: float = 1e-3               # [ours] upper clamp of the adaptive-KL rate (facts, rsl_rl: 1e-2, which let
-    #   the rate jump 1e-5 <-> 1e-2 within a few updates): ramp J +6.8 +- 2.7 deg at 2 M steps, 3 seeds, on two
-    #   CPU models; the obstacle showed no difference beyond its scoring noise (docs/ppo_protocol)
+    max_lr: float = 1e-3               # [ours] upper clamp of the adaptive-KL rate (facts: 1e-2; see above)
     clip: float = 0.2                  # [facts]
     entropy_coef: float = 0.01         # [facts] kept: 0 ended lowest in the screen (docs/ppo_protocol)
     max_std: float = 0.0               # [ours] > 0: the action std is held <= this after each step (0 = free)
-    squash: bool = False               # [ours] True: the env gets sigmoid(u) of the Gaussian sample u, an action in
-    #   (0, 1) (ballu's servo range), instead of u clipped by the env; see `to_env` (screened: no better)
+    squash: bool = False               # [ours] True: the env gets sigmoid(u) in (0, 1), not u clipped (`to_env`)
     split_clip: bool = False           # [ours] True: actor and critic gradients are norm-clipped apart (screened)
     reward_norm: bool = False          # [ours] rewards / running std of the discounted return (see scale_rewards)
     value_coef: float = 1.0            # [ours] (rsl_rl's default)
@@ -320,16 +324,8 @@ def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.rand
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 5. The trainer
+# 5. The training loop
 # ----------------------------------------------------------------------------------------------------------
-CKPT_VERSION = 1
-# torch pickles an empty bytes (a lane's actions at the very start of its episode, ballu's BalluEnv.get_state) as
-# a call of bytes(), which torch.load(weights_only=True) refuses by default: a checkpoint taken just as every
-# lane's episode began would read as damaged and its training start over. bytes() builds only bytes.
-# Process-wide, once: torch's safe_globals() context is not thread-safe (run_all's threads).
-torch.serialization.add_safe_globals([bytes])
-
-
 @dataclass
 class TrainState:
     """What a run carries from update to update; a checkpoint holds all of it (save_checkpoint)."""
@@ -343,6 +339,304 @@ class TrainState:
     ret_norm: RunningNorm              # the return statistics of cfg.reward_norm
     best: dict                         # the best policy's record (next_best)
     own: dict | None = None            # the checkpoint's whole state when the run resumes its own checkpoint
+
+
+def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
+          init_ckpt: str | None = None, seed: int = 0, start_level: int | tuple = 0, log_csv: str | None = None,
+          progress=print) -> dict:
+    """Train a `kind` ('mlp' | 'moe') policy with PPO until `total_steps` control steps, counted from the run's
+    first update ever (a warm start carries its steps, so a GES round trains total_steps minus them).
+
+    `design_sampler(rng, n) -> (n, 4)` draws the designs of resetting lanes (uniform over a design space for
+    the e2e baselines, a GES territory for a specialist). Where the run starts: start_run (resume, warm start,
+    fresh). Each update: rollout -> GAE -> PPO update -> log, and every cfg.ckpt_every updates a checkpoint
+    (checkpoint: the run, and the best policy by training level). Returns a summary of the last update and the
+    best one, and whether the run resumed from `ckpt`."""
+    if env.num_envs < 1 or total_steps < 1:
+        raise ValueError(f"env.num_envs={env.num_envs!r} and total_steps={total_steps!r} must be >= 1")
+    torch.set_num_threads(1)   # the env workers own the cores; the update is small
+    resumed = os.path.exists(ckpt)
+    st = start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level)
+    if st.steps >= total_steps:
+        return {"steps": st.steps, "resumed": True}
+    obs, acc, ep_returns = start_episodes(env, st, design_sampler, progress)
+    T, N, window = cfg.num_steps, env.num_envs, []
+    with TrainLog(log_csv, progress, kind, total_steps) as log:
+        while st.steps < total_steps:
+            t0 = time.time()
+            # rollout: T steps on every lane, then the normaliser's update with what the lanes observed
+            if hasattr(env, "schedule"):   # an env whose schedule follows training's progress (a warm-up)
+                env.schedule(st.steps)
+            noise_seed = int(st.rng.integers(2 ** 31))
+            buf, obs, info, finished = rollout(kind, st.policy, st.norm, env, obs, T, cfg, noise_seed)
+            # GAE: advantages and returns over the (T, N) rollout
+            with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
+                last_value = st.policy.value(torch.from_numpy(st.norm(obs))).numpy()
+            rew = scale_rewards(buf, acc, st.ret_norm, cfg)
+            adv, ret = gae(rew, buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
+            # PPO update: epochs of minibatches from the flattened rollout, the rate following the KL
+            std = st.policy.log_std.exp().detach()
+            batch, t_roll = flatten_batch(buf, adv, ret, std), time.time() - t0
+            st.lr, stats = ppo_update(st.policy, st.opt, batch, cfg, st.lr, st.rng)
+            # log: steps, curriculum levels, the last 100 episodes' return; a checkpoint every cfg.ckpt_every updates
+            st.steps, st.levels = st.steps + T * N, np.asarray(info["levels"])
+            ep_returns.extend(finished)
+            window.append(float(st.levels.mean()))
+            ep_ret = float(np.mean(ep_returns)) if ep_returns else float("nan")   # of the last 100 episodes
+            log.write(st.steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, window[-1], stats, st.lr,
+                      float(std.mean()))
+            if len(window) == cfg.ckpt_every or st.steps >= total_steps:
+                checkpoint(ckpt, st, kind, cfg, env, float(np.mean(window)), obs, acc, ep_returns,
+                           st.steps >= total_steps)
+                window.clear()
+    return {"steps": st.steps, "mean_level": float(st.levels.mean()), "episode_return": ep_ret,
+            "wall_s": time.time() - log.t_start, "best_level": st.best["level"], "best_steps": st.best["steps"],
+            "resumed": resumed}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 6. The loop's parts: where a run starts, the rollout, the log
+# ----------------------------------------------------------------------------------------------------------
+def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level) -> TrainState:
+    """Where a run starts: resumed from `ckpt` if it exists (random streams included: `own`), else warm-started
+    from `init_ckpt` (policy, optimiser, normaliser, curriculum levels and the step count: a GES round), else
+    fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
+    [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
+    A checkpoint of another policy kind, size or observation is a clear error. Resume and warm start: section 7
+    (checked_policy, resume_from)."""
+    resume = ckpt if os.path.exists(ckpt) else init_ckpt
+    state = load_checkpoint(resume) if resume else None
+    if resume != ckpt:
+        torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
+    if state is None:
+        policy, norm = make_policy(kind, env.obs_dim, env.act_dim, cfg), RunningNorm(env.obs_dim, cfg.obs_clip)
+    else:
+        policy, norm = checked_policy(state, resume, kind, env)
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
+    rng = np.random.default_rng([seed, 1])
+    if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
+        levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
+    else:
+        levels = np.full(env.num_envs, start_level)
+    st = TrainState(policy, norm, opt, rng, cfg.lr, 0, levels, RunningNorm(1), dict(NO_BEST))
+    if state is not None:
+        resume_from(st, state, env, own=resume == ckpt)
+    return st
+
+
+def start_episodes(env, st: TrainState, design_sampler, progress):
+    """The run's first observations, the running discounted returns of cfg.reward_norm and the last 100 episode
+    returns: where the run's own checkpoint left them (resume_env), else fresh episodes."""
+    acc, ep_returns = np.zeros(env.num_envs, dtype=np.float32), deque(maxlen=100)
+    obs = resume_env(env, st.own, design_sampler, progress)
+    if obs is not None:
+        acc[:] = st.own["run"]["acc"].numpy()
+        ep_returns.extend(st.own["run"]["ep_returns"])
+        return obs, acc, ep_returns
+    obs, _ = env.reset(seed=int(st.rng.integers(2 ** 31)), options={"design_sampler": design_sampler,
+                                                                      "levels": st.levels})
+    st.norm.update(obs)
+    return obs, acc, ep_returns
+
+
+def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: int):
+    """One rollout of T steps on all lanes, then the normaliser update with every observation that arrived.
+
+    Layout [ours, measured fastest]: a multi-process env (one with `run`, ballu.VecBallu) gets the policy's
+    weights and each worker rolls out its own lanes with a local copy, so no step waits for the trainer
+    (stepping the workers from here, one round trip per 20 Hz step, ran at ~91 % of env-only). Any other env
+    is rolled out in this process."""
+    if hasattr(env, "run"):
+        weights = {k: v.numpy() for k, v in policy.state_dict().items()}   # arrays: a sent tensor goes to shared memory
+        parts = env.run(_rollout_in_worker, [(kind, cfg, weights, norm, obs[ids], T, noise_seed) for ids in env.parts])
+        bufs, obss, infos, rets = zip(*parts)
+        join = lambda dicts, axis: {k: np.concatenate([np.asarray(d[k]) for d in dicts], axis) for k in dicts[0]}
+        buf, info = join(bufs, 1), join(infos, 0)   # buffers are (T, lanes, ...)
+        obs, returns = np.concatenate(obss), [r for ret in rets for r in ret]
+    else:
+        buf, obs, info, returns = rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
+    norm.update(buf.pop("new_obs").reshape(-1, obs.shape[1]))
+    return buf, obs, info, returns
+
+
+def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: int):
+    """T steps on every lane of `env`, run where the env lives (this process, or a worker process holding its
+    own policy copy): returns the buffers (T, n, ...), the raw observations that arrived (for the normaliser),
+    the last observations and info, and the returns of finished episodes. Time-limit ends are bootstrapped
+    with V(final observation).
+
+    The normaliser's statistics are frozen for the rollout (the trainer updates them after it). Lane i's noise
+    comes from rng([noise_seed, lane id]), so how the lanes are split over workers changes nothing but float
+    rounding (batched matmuls of other sizes; contact physics amplifies it, so such runs drift apart)."""
+    n, A = len(obs), policy.log_std.shape[0]
+    lane_ids = getattr(env, "lane_ids", np.arange(n))
+    eps = np.stack([np.random.default_rng([noise_seed, int(i)]).standard_normal((T, A), dtype=np.float32)
+                    for i in lane_ids], axis=1)                      # (T, n, A)
+    buf = {k: np.zeros((T, n) + s, dtype=np.float32) for k, s in
+           (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()), ("boot", ()), ("done", ()),
+            ("val", ()))}
+    buf["new_obs"] = np.zeros((T,) + obs.shape, dtype=obs.dtype)
+    log_std = policy.log_std.detach()
+    std = log_std.exp().numpy()
+    # log N(a; mu, std) with (a - mu) / std = eps: no distribution object in the hot loop
+    logp_0 = -log_std.sum().item() - 0.5 * A * math.log(2 * math.pi)
+    buf["logp"] = (logp_0 - 0.5 * (eps ** 2).sum(-1)).astype(np.float32)
+    returns = []
+    for t in range(T):
+        o = torch.from_numpy(norm(obs))
+        with torch.inference_mode():
+            mu, v = policy.mean(o).numpy(), policy.value(o).numpy()
+        a = mu + std * eps[t]
+        buf["obs"][t], buf["act"][t], buf["mu"][t], buf["val"][t] = o.numpy(), a, mu, v
+        obs, rew, term, trunc, info = env.step(to_env(a, cfg))
+        if trunc.any():   # time-limit end: bootstrap with V(final observation), kept apart from the reward
+            with torch.inference_mode():
+                buf["boot"][t][trunc] = cfg.gamma * policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
+        done = term | trunc
+        returns.extend(info["episode_return"][done].tolist())
+        buf["rew"][t], buf["done"][t], buf["new_obs"][t] = rew, done, obs
+    return buf, obs, info, returns
+
+
+def flatten_batch(buf, adv, ret, std) -> dict:
+    """The (T, N, ...) rollout as (T * N, ...) tensors for the minibatches; `std` is the rollout's action std."""
+    flat = lambda x: torch.from_numpy(np.ascontiguousarray(x.reshape((-1,) + x.shape[2:])))
+    batch = {k: flat(buf[k]) for k in ("obs", "act", "mu", "logp")}
+    batch.update(adv=flat(adv), ret=flat(ret), std=std.expand(len(batch["obs"]), -1))
+    return batch
+
+
+class TrainLog:
+    """Per update, one row appended to the CSV log (if `log_csv`) and one progress line (if `progress`)."""
+    COLUMNS = ["steps", "wall_s", "steps_per_s", "mean_reward", "episode_return", "mean_level", "kl", "lr",
+               "value_loss", "entropy", "std"]
+
+    def __init__(self, log_csv, progress, kind: str, total_steps: int):
+        self.file = open(log_csv, "a", newline="") if log_csv else None
+        self.csv = csv.writer(self.file) if self.file else None
+        if self.file and self.file.tell() == 0:
+            self.csv.writerow(self.COLUMNS)
+        self.progress, self.kind, self.total_steps, self.t_start = progress, kind, total_steps, time.time()
+
+    def write(self, steps, n, t0, t_roll, reward, ep_ret, level, st, lr, std):
+        """The update that began at time t0 and ended at `steps`: `n` steps, `t_roll` seconds of rollout."""
+        dt = time.time() - t0
+        rate = n / dt
+        row = [steps, round(time.time() - self.t_start, 2), round(rate, 1), reward, ep_ret, level, st["kl"], lr,
+               st["value_loss"], st["entropy"], std]
+        if self.csv:
+            self.csv.writerow(row)
+            self.file.flush()
+        if self.progress:
+            time_left_s = eta_s(dt, n, self.total_steps - steps)   # at the last update's pace
+            ret = f"{ep_ret:+8.2f}" if math.isfinite(ep_ret) else f"{'-':>8}"   # no episode has ended yet
+            self.progress(f"[{self.kind}] {steps:>9,}/{self.total_steps:,} steps  {rate:6.0f} steps/s (rollout "
+                          f"{100 * t_roll / dt:3.0f}%)  reward {reward:+.3f}  return {ret}  "
+                          f"level {level:5.1f}  kl {st['kl']:.4f}  lr {lr:.1e}  std {std:.2f}  "
+                          f"eta {time_left_s / 60:5.1f} min")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.file:
+            self.file.close()
+
+
+def plot_learning_curve(log_csv: str, path: str, title: str = ""):
+    """Mean episode return and mean curriculum level against control steps, from a train() CSV log."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    with open(log_csv) as f:
+        rows = list(csv.DictReader(f))
+    steps = np.array([float(r["steps"]) for r in rows])
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.2))
+    ax[0].plot(steps, [float(r["episode_return"]) for r in rows])
+    ax[0].set(xlabel="control steps", ylabel="episode return (last 100)")
+    ax[1].plot(steps, [float(r["mean_level"]) for r in rows])
+    ax[1].set(xlabel="control steps", ylabel="mean curriculum level")
+    fig.suptitle(title or os.path.basename(log_csv))
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+# Rolling out in the env's workers (`rollout` with a multi-process env): each worker keeps a policy copy
+_POLICY_COPIES = {}   # a worker's policy per (kind, weight shapes): built once (ms), then only given new weights
+
+
+def _rollout_in_worker(env, kind, cfg, weights, norm, obs, T, noise_seed):
+    """`rollout_lanes` in one worker of a multi-process env (called there by env.run), with its policy copy."""
+    key = (kind, *(w.shape for w in weights.values()))
+    if key not in _POLICY_COPIES:
+        torch.set_num_threads(1)   # the workers own the cores, one each
+        _POLICY_COPIES[key] = make_policy(kind, env.obs_dim, env.act_dim, cfg)
+    policy = _POLICY_COPIES[key]
+    policy.load_state_dict({k: torch.from_numpy(w) for k, w in weights.items()})
+    return rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. Checkpoints and resume
+# ----------------------------------------------------------------------------------------------------------
+# A run's checkpoint holds its whole TrainState (save_checkpoint). Every cfg.ckpt_every updates the loop saves it
+# and, before it, the best policy by training level (checkpoint, next_best); a score plays scored_path's. A killed
+# run, rerun, resumes its own checkpoint exactly (start_run -> checked_policy, resume_from; resume_env).
+# Files written by older code still load, train on and score the same, each where it is read: a checkpoint
+# without obs_names is checked by size (checked_policy; ballu.policy_config when scored), one without ret_norm
+# or a best record resumes without them (resume_from), a best record without "first" keeps the plain rule
+# (next_best), one without the env's state starts fresh episodes (resume_env), and a run trained before the
+# best checkpoint existed is scored on its last (scored_path).
+
+CKPT_VERSION = 1
+# torch pickles an empty bytes (a lane's actions at the very start of its episode, ballu's BalluEnv.get_state) as
+# a call of bytes(), which torch.load(weights_only=True) refuses by default: a checkpoint taken just as every
+# lane's episode began would read as damaged and its training start over. bytes() builds only bytes.
+# Process-wide, once: torch's safe_globals() context is not thread-safe (run_all's threads).
+torch.serialization.add_safe_globals([bytes])
+
+
+def checkpoint(ckpt, st: TrainState, kind, cfg, env, level, obs, acc, ep_returns, finished: bool):
+    """Save the run to `ckpt` (every cfg.ckpt_every updates and at the end) and, if the mean training level
+    `level` of the updates since the last checkpoint beats the best so far (next_best), first to
+    best_path(ckpt) [facts: the authors keep the update with the highest mean level]. [ours] The mean over
+    ckpt_every updates, not one update's: 32 lanes' mean level moves by chance from update to update, and a
+    best taken only at checkpoints is rewritten bit for bit by a run resumed after a kill.
+    [ours] An unfinished run's checkpoint also holds the env's state (if the env has get_state: each lane's
+    design, level, clock, random stream and episode so far) and the last observations, so a run killed and rerun
+    goes on exactly as if never stopped; without it a resumed run is another run (docs/ppo_protocol "Resumed
+    runs"). A finished run's holds none: continuing it to more steps starts fresh episodes, as a warm start does."""
+    names = obs_names_of(env)
+    new = next_best(st.best, level, st.steps)
+    if new is not None:   # the best first: a kill in between redoes both
+        st.best = new
+        save_checkpoint(best_path(ckpt), st, kind, cfg, obs_names=names)
+    lanes = env.get_state() if not finished and hasattr(env, "get_state") else None
+    run = None if lanes is None else {"env": lanes, "obs": torch.from_numpy(obs.copy()),
+                                      "acc": torch.from_numpy(acc.copy()), "ep_returns": list(ep_returns)}
+    save_checkpoint(ckpt, st, kind, cfg, run, names)
+
+
+NO_BEST = {"level": -math.inf, "steps": 0}   # no best policy saved yet
+
+
+def next_best(best: dict, level: float, steps: int) -> dict | None:
+    """The best-policy record after a checkpoint whose window has mean training level `level`; None if the best
+    stays. [facts] The highest window wins. [ours] Until a window beats the run's first one, a new lowest window
+    takes the best instead: lanes that start spread up to the score's level (Preset.ppo_start "task") give the
+    untrained first windows a high level that the curriculum then pulls down, and the plain rule keeps that
+    untrained policy (docs/ppo_protocol "The best policy"). The same holds for a warm start (a GES round), whose lanes carry
+    levels earned on other designs. A run whose level ever beats its first window keeps the plain rule's best
+    exactly; a record without "first" (an older checkpoint's) keeps the plain rule."""
+    if best["level"] == -math.inf:   # the run's first window
+        return {"level": level, "steps": steps, "first": level, "low": level}
+    if best["level"] <= best.get("first", -math.inf) and level < best["low"]:
+        return {**best, "level": level, "steps": steps, "low": level}
+    if level > best["level"]:
+        return {**best, "level": level, "steps": steps}
+    return None
 
 
 def save_checkpoint(path, st: TrainState, kind, cfg, run=None, obs_names=None):
@@ -417,276 +711,33 @@ def policy_from(state) -> tuple[nn.Module, RunningNorm]:
     return policy, norm
 
 
-def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: int):
-    """T steps on every lane of `env`, run where the env lives (this process, or a worker process holding its
-    own policy copy): returns the buffers (T, n, ...), the raw observations that arrived (for the normaliser),
-    the last observations and info, and the returns of finished episodes. Time-limit ends are bootstrapped
-    with V(final observation).
-
-    The normaliser's statistics are frozen for the rollout (the trainer updates them after it). Lane i's noise
-    comes from rng([noise_seed, lane id]), so how the lanes are split over workers changes nothing but float
-    rounding (batched matmuls of other sizes; contact physics amplifies it, so such runs drift apart)."""
-    n, A = len(obs), policy.log_std.shape[0]
-    lane_ids = getattr(env, "lane_ids", np.arange(n))
-    eps = np.stack([np.random.default_rng([noise_seed, int(i)]).standard_normal((T, A), dtype=np.float32)
-                    for i in lane_ids], axis=1)                      # (T, n, A)
-    buf = {k: np.zeros((T, n) + s, dtype=np.float32) for k, s in
-           (("obs", (obs.shape[1],)), ("act", (A,)), ("mu", (A,)), ("rew", ()), ("boot", ()), ("done", ()),
-            ("val", ()))}
-    buf["new_obs"] = np.zeros((T,) + obs.shape, dtype=obs.dtype)
-    log_std = policy.log_std.detach()
-    std = log_std.exp().numpy()
-    # log N(a; mu, std) with (a - mu) / std = eps: no distribution object in the hot loop
-    logp_0 = -log_std.sum().item() - 0.5 * A * math.log(2 * math.pi)
-    buf["logp"] = (logp_0 - 0.5 * (eps ** 2).sum(-1)).astype(np.float32)
-    returns = []
-    for t in range(T):
-        o = torch.from_numpy(norm(obs))
-        with torch.inference_mode():
-            mu, v = policy.mean(o).numpy(), policy.value(o).numpy()
-        a = mu + std * eps[t]
-        buf["obs"][t], buf["act"][t], buf["mu"][t], buf["val"][t] = o.numpy(), a, mu, v
-        obs, rew, term, trunc, info = env.step(to_env(a, cfg))
-        if trunc.any():   # time-limit end: bootstrap with V(final observation), kept apart from the reward
-            with torch.inference_mode():
-                buf["boot"][t][trunc] = cfg.gamma * policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
-        done = term | trunc
-        returns.extend(info["episode_return"][done].tolist())
-        buf["rew"][t], buf["done"][t], buf["new_obs"][t] = rew, done, obs
-    return buf, obs, info, returns
-
-
-_POLICY_COPIES = {}   # a worker's policy per (kind, weight shapes): built once (ms), then only given new weights
-
-
-def _rollout_in_worker(env, kind, cfg, weights, norm, obs, T, noise_seed):
-    """`rollout_lanes` in one worker of a multi-process env (called there by env.run), with its policy copy."""
-    key = (kind, *(w.shape for w in weights.values()))
-    if key not in _POLICY_COPIES:
-        torch.set_num_threads(1)   # the workers own the cores, one each
-        _POLICY_COPIES[key] = make_policy(kind, env.obs_dim, env.act_dim, cfg)
-    policy = _POLICY_COPIES[key]
-    policy.load_state_dict({k: torch.from_numpy(w) for k, w in weights.items()})
-    return rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
-
-
-def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: int):
-    """One rollout of T steps on all lanes, then the normaliser update with every observation that arrived.
-
-    Layout [ours, measured fastest]: a multi-process env (one with `run`, ballu.VecBallu) gets the policy's
-    weights and each worker rolls out its own lanes with a local copy, so no step waits for the trainer
-    (stepping the workers from here, one round trip per 20 Hz step, ran at ~91 % of env-only). Any other env
-    is rolled out in this process."""
-    if hasattr(env, "run"):
-        weights = {k: v.numpy() for k, v in policy.state_dict().items()}   # arrays: a sent tensor goes to shared memory
-        parts = env.run(_rollout_in_worker, [(kind, cfg, weights, norm, obs[ids], T, noise_seed) for ids in env.parts])
-        bufs, obss, infos, rets = zip(*parts)
-        join = lambda dicts, axis: {k: np.concatenate([np.asarray(d[k]) for d in dicts], axis) for k in dicts[0]}
-        buf, info = join(bufs, 1), join(infos, 0)   # buffers are (T, lanes, ...)
-        obs, returns = np.concatenate(obss), [r for ret in rets for r in ret]
-    else:
-        buf, obs, info, returns = rollout_lanes(env, policy, norm, obs, T, cfg, noise_seed)
-    norm.update(buf.pop("new_obs").reshape(-1, obs.shape[1]))
-    return buf, obs, info, returns
-
-
-def flatten_batch(buf, adv, ret, std) -> dict:
-    """The (T, N, ...) rollout as (T * N, ...) tensors for the minibatches; `std` is the rollout's action std."""
-    flat = lambda x: torch.from_numpy(np.ascontiguousarray(x.reshape((-1,) + x.shape[2:])))
-    batch = {k: flat(buf[k]) for k in ("obs", "act", "mu", "logp")}
-    batch.update(adv=flat(adv), ret=flat(ret), std=std.expand(len(batch["obs"]), -1))
-    return batch
-
-
-def obs_names_of(env):
-    """The names of the env's observation entries as a list (a checkpoint keeps them), None if it has none."""
-    names = getattr(env, "obs_names", None)
-    return list(names) if names else None
-
-
-def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level) -> TrainState:
-    """Where a run starts: resumed from `ckpt` if it exists (random streams included: `own`), else warm-started
-    from `init_ckpt` (policy, optimiser, normaliser, curriculum levels and the step count: a GES round), else
-    fresh from `seed`, every lane at curriculum level `start_level`, or at a uniform level in (low, high)
-    [ours: lets the policy meet the levels that the score J plays without climbing one level per episode].
-    A checkpoint of another policy kind, size or observation is a clear error."""
-    resume = ckpt if os.path.exists(ckpt) else init_ckpt
-    state = load_checkpoint(resume) if resume else None
+def checked_policy(state, path, kind, env) -> tuple[nn.Module, RunningNorm]:
+    """The policy and normaliser of checkpoint `state` (read from `path`) for a `kind` run on `env`; a checkpoint
+    of another policy kind, size or observation is a clear error."""
     names = obs_names_of(env)
-    if resume != ckpt:
-        torch.manual_seed(seed)   # before the policy is built: fresh weights depend on the seed only
-    if state is None:
-        policy, norm = make_policy(kind, env.obs_dim, env.act_dim, cfg), RunningNorm(env.obs_dim, cfg.obs_clip)
-    elif (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
-        raise ValueError(f"checkpoint {resume!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
+    if (state["obs_dim"], state["act_dim"]) != (env.obs_dim, env.act_dim) or state["kind"] != kind:
+        raise ValueError(f"checkpoint {path!r} holds a {state['kind']} policy for obs {state['obs_dim']} /"
                          f" act {state['act_dim']}, not a {kind} policy for obs {env.obs_dim} / act {env.act_dim}")
-    elif state.get("obs_names", names) != names:   # (checkpoints older than the names are checked by size)
-        raise ValueError(f"checkpoint {resume!r} holds a policy that observed {state['obs_names']}, this env "
+    if state.get("obs_names", names) != names:   # (older files: checkpoints older than the names are checked by size)
+        raise ValueError(f"checkpoint {path!r} holds a policy that observed {state['obs_names']}, this env "
                          f"observes {names}")
-    else:
-        policy, norm = policy_from(state)
-    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr, foreach=True)   # one fused call per step
-    rng = np.random.default_rng([seed, 1])
-    if isinstance(start_level, (tuple, list)):   # (low, high): each lane starts at a uniform level in between
-        levels = rng.integers(start_level[0], start_level[1] + 1, env.num_envs)
-    else:
-        levels = np.full(env.num_envs, start_level)
-    st = TrainState(policy, norm, opt, rng, cfg.lr, 0, levels, RunningNorm(1), dict(NO_BEST))
-    if state is None:
-        return st
-    opt.load_state_dict(state["optimizer"])
-    if "ret_norm" in state:
+    return policy_from(state)
+
+
+def resume_from(st: TrainState, state: dict, env, own: bool):
+    """start_run's resume half: a checkpoint's optimiser, return statistics, curriculum levels, learning rate and
+    step count go on in the run `st` (a warm start: a GES round); if `own` (the run resumes its own checkpoint),
+    its best-policy record and random streams too, and the whole state as `st.own` (for resume_env)."""
+    st.opt.load_state_dict(state["optimizer"])
+    if "ret_norm" in state:   # (older files: none before cfg.reward_norm)
         st.ret_norm.load(state["ret_norm"])
     if len(state["levels"]):
         st.levels = np.resize(state["levels"].numpy(), env.num_envs)
     st.lr, st.steps = state["lr"], state["steps"]
-    if resume == ckpt:   # resuming this very run: continue its random streams too
-        st.own, st.best = state, state["extra"].get("best", NO_BEST)
-        rng.bit_generator.state = state["rng"]
+    if own:   # resuming this very run: continue its random streams too
+        st.own, st.best = state, state["extra"].get("best", NO_BEST)   # (older files: no best record)
+        st.rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
-    return st
-
-
-def start_episodes(env, st: TrainState, design_sampler, progress):
-    """The run's first observations, the running discounted returns of cfg.reward_norm and the last 100 episode
-    returns: where the run's own checkpoint left them (resume_env), else fresh episodes."""
-    acc, ep_returns = np.zeros(env.num_envs, dtype=np.float32), deque(maxlen=100)
-    obs = resume_env(env, st.own, design_sampler, progress)
-    if obs is not None:
-        acc[:] = st.own["run"]["acc"].numpy()
-        ep_returns.extend(st.own["run"]["ep_returns"])
-        return obs, acc, ep_returns
-    obs, _ = env.reset(seed=int(st.rng.integers(2 ** 31)), options={"design_sampler": design_sampler,
-                                                                      "levels": st.levels})
-    st.norm.update(obs)
-    return obs, acc, ep_returns
-
-
-def checkpoint(ckpt, st: TrainState, kind, cfg, env, level, obs, acc, ep_returns, finished: bool):
-    """Save the run to `ckpt` (every cfg.ckpt_every updates and at the end) and, if the mean training level
-    `level` of the updates since the last checkpoint beats the best so far (next_best), first to
-    best_path(ckpt) [facts: the authors keep the update with the highest mean level]. [ours] The mean over
-    ckpt_every updates, not one update's: 32 lanes' mean level moves by chance from update to update, and a
-    best taken only at checkpoints is rewritten bit for bit by a run resumed after a kill.
-    [ours] An unfinished run's checkpoint also holds the env's state (if the env has get_state: each lane's
-    design, level, clock, random stream and episode so far) and the last observations, so a run killed and rerun
-    goes on exactly as if never stopped; without it a resumed run is another run (docs/ppo_protocol "Resumed
-    runs"). A finished run's holds none: continuing it to more steps starts fresh episodes, as a warm start does."""
-    names = obs_names_of(env)
-    new = next_best(st.best, level, st.steps)
-    if new is not None:   # the best first: a kill in between redoes both
-        st.best = new
-        save_checkpoint(best_path(ckpt), st, kind, cfg, obs_names=names)
-    lanes = env.get_state() if not finished and hasattr(env, "get_state") else None
-    run = None if lanes is None else {"env": lanes, "obs": torch.from_numpy(obs.copy()),
-                                      "acc": torch.from_numpy(acc.copy()), "ep_returns": list(ep_returns)}
-    save_checkpoint(ckpt, st, kind, cfg, run, names)
-
-
-class TrainLog:
-    """Per update, one row appended to the CSV log (if `log_csv`) and one progress line (if `progress`)."""
-    COLUMNS = ["steps", "wall_s", "steps_per_s", "mean_reward", "episode_return", "mean_level", "kl", "lr",
-               "value_loss", "entropy", "std"]
-
-    def __init__(self, log_csv, progress, kind: str, total_steps: int):
-        self.file = open(log_csv, "a", newline="") if log_csv else None
-        self.csv = csv.writer(self.file) if self.file else None
-        if self.file and self.file.tell() == 0:
-            self.csv.writerow(self.COLUMNS)
-        self.progress, self.kind, self.total_steps, self.t_start = progress, kind, total_steps, time.time()
-
-    def write(self, steps, n, t0, t_roll, reward, ep_ret, level, st, lr, std):
-        """The update that began at time t0 and ended at `steps`: `n` steps, `t_roll` seconds of rollout."""
-        dt = time.time() - t0
-        rate = n / dt
-        row = [steps, round(time.time() - self.t_start, 2), round(rate, 1), reward, ep_ret, level, st["kl"], lr,
-               st["value_loss"], st["entropy"], std]
-        if self.csv:
-            self.csv.writerow(row)
-            self.file.flush()
-        if self.progress:
-            eta = eta_s(dt, n, self.total_steps - steps)   # at the last update's pace
-            ret = f"{ep_ret:+8.2f}" if math.isfinite(ep_ret) else f"{'-':>8}"   # no episode has ended yet
-            self.progress(f"[{self.kind}] {steps:>9,}/{self.total_steps:,} steps  {rate:6.0f} steps/s (rollout "
-                          f"{100 * t_roll / dt:3.0f}%)  reward {reward:+.3f}  return {ret}  "
-                          f"level {level:5.1f}  kl {st['kl']:.4f}  lr {lr:.1e}  std {std:.2f}  "
-                          f"eta {eta / 60:5.1f} min")
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        if self.file:
-            self.file.close()
-
-
-def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOConfig = PPOConfig(),
-          init_ckpt: str | None = None, seed: int = 0, start_level: int | tuple = 0, log_csv: str | None = None,
-          progress=print) -> dict:
-    """Train a `kind` ('mlp' | 'moe') policy with PPO until `total_steps` control steps, counted from the run's
-    first update ever (a warm start carries its steps, so a GES round trains total_steps minus them).
-
-    `design_sampler(rng, n) -> (n, 4)` draws the designs of resetting lanes (uniform over a design space for
-    the e2e baselines, a GES territory for a specialist). Where the run starts: start_run (resume, warm start,
-    fresh). Each update: rollout -> GAE -> PPO update -> log, and every cfg.ckpt_every updates a checkpoint
-    (checkpoint: the run, and the best policy by training level). Returns a summary of the last update and the
-    best one, and whether the run resumed from `ckpt`."""
-    if env.num_envs < 1 or total_steps < 1:
-        raise ValueError(f"env.num_envs={env.num_envs!r} and total_steps={total_steps!r} must be >= 1")
-    torch.set_num_threads(1)   # the env workers own the cores; the update is small
-    resumed = os.path.exists(ckpt)
-    st = start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level)
-    if st.steps >= total_steps:
-        return {"steps": st.steps, "resumed": True}
-    obs, acc, ep_returns = start_episodes(env, st, design_sampler, progress)
-    T, N, window = cfg.num_steps, env.num_envs, []
-    with TrainLog(log_csv, progress, kind, total_steps) as log:
-        while st.steps < total_steps:
-            t0 = time.time()
-            if hasattr(env, "schedule"):   # an env whose schedule follows training's progress (a warm-up)
-                env.schedule(st.steps)
-            noise_seed = int(st.rng.integers(2 ** 31))
-            buf, obs, info, finished = rollout(kind, st.policy, st.norm, env, obs, T, cfg, noise_seed)
-            with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
-                last_value = st.policy.value(torch.from_numpy(st.norm(obs))).numpy()
-            rew = scale_rewards(buf, acc, st.ret_norm, cfg)
-            adv, ret = gae(rew, buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
-            std = st.policy.log_std.exp().detach()
-            batch, t_roll = flatten_batch(buf, adv, ret, std), time.time() - t0
-            st.lr, stats = ppo_update(st.policy, st.opt, batch, cfg, st.lr, st.rng)
-            st.steps, st.levels = st.steps + T * N, np.asarray(info["levels"])
-            ep_returns.extend(finished)
-            window.append(float(st.levels.mean()))
-            ep_ret = float(np.mean(ep_returns)) if ep_returns else float("nan")   # of the last 100 episodes
-            log.write(st.steps, T * N, t0, t_roll, float(buf["rew"].mean()), ep_ret, window[-1], stats, st.lr,
-                      float(std.mean()))
-            if len(window) == cfg.ckpt_every or st.steps >= total_steps:
-                checkpoint(ckpt, st, kind, cfg, env, float(np.mean(window)), obs, acc, ep_returns,
-                           st.steps >= total_steps)
-                window.clear()
-    return {"steps": st.steps, "mean_level": float(st.levels.mean()), "episode_return": ep_ret,
-            "wall_s": time.time() - log.t_start, "best_level": st.best["level"], "best_steps": st.best["steps"],
-            "resumed": resumed}
-
-
-NO_BEST = {"level": -math.inf, "steps": 0}   # no best policy saved yet
-
-
-def next_best(best: dict, level: float, steps: int) -> dict | None:
-    """The best-policy record after a checkpoint whose window has mean training level `level`; None if the best
-    stays. [facts] The highest window wins. [ours] Until a window beats the run's first one, a new lowest window
-    takes the best instead: lanes that start spread up to the score's level (Preset.ppo_start "task") give the
-    untrained first windows a high level that the curriculum then pulls down, and the plain rule keeps that
-    untrained policy (docs/ppo_protocol "The best policy"). The same holds for a warm start (a GES round), whose lanes carry
-    levels earned on other designs. A run whose level ever beats its first window keeps the plain rule's best
-    exactly; a record without "first" (an older checkpoint's) keeps the plain rule."""
-    if best["level"] == -math.inf:   # the run's first window
-        return {"level": level, "steps": steps, "first": level, "low": level}
-    if best["level"] <= best.get("first", -math.inf) and level < best["low"]:
-        return {**best, "level": level, "steps": steps, "low": level}
-    if level > best["level"]:
-        return {**best, "level": level, "steps": steps}
-    return None
 
 
 def resume_env(env, own, design_sampler, progress):
@@ -708,28 +759,14 @@ def resume_env(env, own, design_sampler, progress):
     return run["obs"].numpy().copy()
 
 
-def plot_learning_curve(log_csv: str, path: str, title: str = ""):
-    """Mean episode return and mean curriculum level against control steps, from a train() CSV log."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    with open(log_csv) as f:
-        rows = list(csv.DictReader(f))
-    steps = np.array([float(r["steps"]) for r in rows])
-    fig, ax = plt.subplots(1, 2, figsize=(9, 3.2))
-    ax[0].plot(steps, [float(r["episode_return"]) for r in rows])
-    ax[0].set(xlabel="control steps", ylabel="episode return (last 100)")
-    ax[1].plot(steps, [float(r["mean_level"]) for r in rows])
-    ax[1].set(xlabel="control steps", ylabel="mean curriculum level")
-    fig.suptitle(title or os.path.basename(log_csv))
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+def obs_names_of(env):
+    """The names of the env's observation entries as a list (a checkpoint keeps them), None if it has none."""
+    names = getattr(env, "obs_names", None)
+    return list(names) if names else None
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. A checkpoint as a plain callable
+# 8. A checkpoint as a plain callable
 # ----------------------------------------------------------------------------------------------------------
 class PolicyFn:
     """obs (n, obs_dim) numpy -> deterministic action (the Gaussian mean), as ballu.score expects.
@@ -768,7 +805,7 @@ def load_policy(path: str) -> PolicyFn:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 7. Benchmark: end-to-end training against the env alone
+# 9. Benchmark: end-to-end training against the env alone
 # ----------------------------------------------------------------------------------------------------------
 def _random_steps(env, T, mean, std, seed):
     """The env-only reference: T steps with N(mean, std) actions, run where the env lives (no policy)."""

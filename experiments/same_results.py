@@ -15,11 +15,12 @@ import json
 import os
 import sys
 
-TIMES, PATHS = ("second", "wall", "created"), ("warm_start", "run_dir", "ckpt")
+TIMES, PATHS = ("second", "wall", "created", "reduction_pct"), ("warm_start", "run_dir", "ckpt")
 
 
 def varies(key: str) -> bool:
-    """A key whose value differs between any two runs: a wall time or a path."""
+    """A key whose value differs between any two runs: a wall time (or the cost stage's saving, a ratio of
+    wall times) or a path."""
     return any(t in key for t in TIMES) or key.endswith("_s") or key in PATHS
 
 
