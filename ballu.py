@@ -1,4 +1,4 @@
-"""ballu.py -- a batched PyBullet simulator of BALLU for the GES co-design paper.
+"""ballu.py -- a batched PyBullet simulator of BALLU for the GES co-design paper: the robot, its tasks and the score.
 
 Read top to bottom:
   1. the design vector (l_f, l_t, gcr, spcf), Table I, D2/D3 and design samplers -- paper Sec. III-B, Table I
@@ -6,62 +6,34 @@ Read top to bottom:
   3. the robot: mass properties and a URDF generated from a design         -- docs/facts.md "Robot"
   4. the knee law (spring + tendon PD) and the balloon forces              -- facts "Knee", "Buoyancy and drag"
   5. tasks: obstacle and ramp terrain, curriculum, rewards (paper eq. 4)   -- paper Sec. III-C, facts "Tasks"
-  6. `BalluEnv`: N robots, one lane each, in PyBullet worlds of a few lanes; batched API
-  7. worker processes: `WorkerPool` (long-lived), `VecBallu` (W workers, each a `BalluEnv`, same API)
+  6. `BalluEnv`: N robots, one lane each, in PyBullet worlds (one lane per world by default); batched API
+  7. `VecBallu`: W worker processes, each a `BalluEnv`, same API (the workers: runkit/lanes.py)
   8. the score J(policy, design) and two scripted controllers (stand, pump)
-  9. command line: --bench (throughput beside the previous robot's), --strip (a pump gait's motion strip)
+  9. command line: --bench (throughput), --strip PNG (a pump gait's motion strip): experiments/ballu_bench.py
 
-This module imports no other module of the project: the learner (ppo.py) and the co-design (ges.py) sit on top.
-The physics audit and the open-loop capability search: experiments/ballu_capability.py (docs/capability).
+Of the project it imports only runkit/lanes.py (worker processes; knows no robot): the learner (ppo.py) and the
+co-design (ges.py) sit on top. Physics audit and open-loop capability: experiments/ballu_capability.py.
 
-Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward).
-Every choice says where it comes from: [paper], [facts] (the authors' code read as facts, see
-docs/facts.md), or [ours] where both are silent, with the study in docs/ that measured it. QUIRKs of the
-authors' code exist as options, off by default.
+Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward). Every choice
+says where it comes from: [paper], [facts] (the authors' code read as facts, see docs/facts.md), or [ours]
+where both are silent, with the study in docs/ that measured it. QUIRKs of the authors' code: options, off.
 
-The batched interface follows Gymnasium's vector-env conventions without importing gymnasium:
-reset(seed=..., options=...) -> (obs, info); step(actions) -> (obs, reward, terminated, truncated, info),
-arrays shaped (num_envs, ...); an episode that ends is reset in the same step and its last observation is
-in info["final_obs"] (rows flagged by info["_final_obs"]).
+The batched interface follows Gymnasium's vector-env conventions without importing gymnasium (runkit/lanes.py);
+a finished episode is reset in the same step, its last observation in info["final_obs"] (rows: info["_final_obs"]).
 """
 from __future__ import annotations
 
-import argparse
-import atexit
-import contextlib
-import copy
 import math
-import multiprocessing as mp
 import os
 import tempfile
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 
-
-@contextlib.contextmanager
-def quiet_stdout(fds=(1,)):
-    """Silence C-level output (file descriptors; 1 = stdout) in a with-block: PyBullet's C code prints
-    "argv[0]=" on stdout at every connect, and a build-time banner on stderr (2) at import. C's own buffers
-    are flushed before the descriptors come back. Python exceptions still propagate."""
-    import ctypes
-    import sys
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved, devnull = [os.dup(fd) for fd in fds], os.open(os.devnull, os.O_WRONLY)
-    for fd in fds:
-        os.dup2(devnull, fd)
-    os.close(devnull)
-    try:
-        yield
-    finally:
-        ctypes.CDLL(None).fflush(None)
-        for fd, keep in zip(fds, saved):
-            os.dup2(keep, fd)
-            os.close(keep)
-
+from runkit.lanes import VecEnv, check_actions, check_split, quiet_stdout, score_lanes, shared_pool  # noqa: F401
 
 with quiet_stdout((1, 2)):   # no "pybullet build time" banner in every script and worker
     import pybullet
@@ -211,8 +183,7 @@ def normalise_design(design) -> np.ndarray:
     return (np.asarray(design, dtype=float) - TABLE_I_LOW) / (TABLE_I_HIGH - TABLE_I_LOW)
 
 
-# Design samplers: sampler(rng, n) -> (n, 4) full designs for the lanes that reset (training). Picklable, so
-# worker processes receive them.
+# Design samplers: sampler(rng, n) -> (n, 4) full designs for the lanes that reset (training); picklable.
 class FixedDesign:
     """Always one design (a per-design policy, e.g. the baseline's)."""
 
@@ -252,10 +223,9 @@ SCORE_START_LEVEL = {"obstacle": 28, "ramp": 40}      # [facts] the score J star
 
 
 def spread_start_levels(task: str, score_start: int | None = None) -> tuple:
-    """Lanes that start each at a uniform level in 0..the level the score J starts from (ppo.train's
-    start_level=(low, high)). [ours]  Why: J only sees levels near its start (28 obstacle, 40 ramp),
-    while a curriculum from level 0 climbs at most one level per 20 s episode; failing lanes walk down to what
-    the policy can do. The protocol's `spread_start` setting; where it is the default: train_start_levels."""
+    """Lanes that start each at a uniform level in 0..the score's start level (ppo.train's start_level=(low, high))
+    [ours]: J sees only levels near its start, a curriculum from 0 climbs a level per episode at most, and failing
+    lanes walk down to what the policy can do. Where it is the default: train_start_levels."""
     return (0, SCORE_START_LEVEL[task] if score_start is None else int(score_start))
 
 
@@ -264,9 +234,8 @@ SPREAD_START_TASKS = ("ramp",)   # [ours] tasks whose training starts spread (tr
 
 def train_start_levels(task: str, score_start: int | None = None):
     """A fresh training run's curriculum start: spread (spread_start_levels) on the ramp, level 0 (the facts'
-    curriculum) on the obstacle. [ours; the facts start at 0]  Why: on the ramp the spread start scored higher
-    on every seed at 1 M steps (+6.4, +8.0, +6.8 deg), the most a 2-core preset trains; on the obstacle it made
-    no difference the seeds could resolve. Measured on the previous robot (docs/ppo_protocol)."""
+    curriculum) on the obstacle. [ours; the facts start at 0]  The spread start scored higher on the ramp, no
+    differently on the obstacle (docs/ppo_protocol; the numbers: docs/choices.md)."""
     return spread_start_levels(task, score_start) if task in SPREAD_START_TASKS else 0
 
 
@@ -286,12 +255,13 @@ def named_start_levels(start, task: str, score_start: int | None = None):
     return (train_start_levels if start == "task" else spread_start_levels)(task, score_start)
 
 
-HARDWARE_DRAG = 0.4   # [facts] the balloon drag of the authors' May 2025 branch, as an option: drag_coef=0.4
+HARDWARE_DRAG = 0.4   # [facts] an early branch's balloon drag, an option: drag_coef=HARDWARE_DRAG (docs/facts.md)
 
 
 @dataclass
 class BalluConfig:
-    """Everything the simulator needs besides a design. Defaults: [paper] where it says, else [facts]."""
+    """Everything the simulator needs besides a design. Defaults: [paper] where it says, else [facts]; each [ours]
+    names its study, whose numbers are in docs/choices.md ("The measurements behind BalluConfig")."""
     task: str = "obstacle"
     physics_hz: int = 200                 # [paper] Sec. V-A: physics 200 Hz
     decimation: int = 10                  # [paper] control 20 Hz = 10 physics steps per action
@@ -310,39 +280,27 @@ class BalluConfig:
     balloon_height: float = 0.70
     balloon_above_neck: float = 0.38
     neck_xz: tuple = (0.0044, 0.015)
-    # knee law  [facts]
-    # Spring preload q0 = 72.35 deg as the authors' robot configuration and morphology loader set it [facts];
-    # pi/4 (45 deg) is the previous robot's (PREVIOUS_ROBOT, kept to measure against).
-    spring_preload: float = math.radians(72.35)   # tau_spring = -2 k (q + q0) - spring_damping qdot
+    # knee law  [facts]; the previous robot's 45 deg preload: experiments/ballu_bench.py
+    spring_preload: float = math.radians(72.35)   # q0: tau_spring = -2 k (q + q0) - spring_damping qdot
     spring_damping: float = 0.001
     pd_p: float = 1.0
     pd_d: float = 0.08
     tau_max: float = 0.0848               # N m, servo torque limit
     servo_speed: float = 7.48             # rad/s, 60 deg / 0.14 s: clips the D term's knee velocity [facts]
-    # Hardware-like servo [ours, option]: the horn slews at <= servo_speed, so the knee target moves at
-    # <= 4.16 rad/s. Off by default: the paper's simulation sets the knee target at once every control step
-    # [facts]. With the slew on, open-loop toe clearances fall several-fold (docs/capability), closer to the
-    # real robot (24 cm / 8 cm), far from the paper's simulation.
+    # [ours, option] a hardware-like servo slewing at <= servo_speed (off: target set at once [facts]); docs/capability
     servo_slew: bool = False
-    # Passive hips and neck: joint damping 0.001 N m s/rad as in the authors' robot [facts], applied as an
-    # explicit torque -c qdot (URDF joint damping on these tiny inertias blows PyBullet up [facts]).
-    passive_damping: float = 0.001
-    # balloon  [facts]: no drag in the authors' simulation as they run it now (drag 0 since June 2025).
-    # HARDWARE_DRAG (0.4: F_d = -sign(v) 0.4 v^2 per world axis, their May 2025 branch) is the option that caps
-    # how high a high-gcr robot flies, closer to the hardware's 24 cm (docs/capability).
+    passive_damping: float = 0.001        # [facts] hips and neck, N m s/rad: a torque -c qdot (URDF damping explodes)
+    # [facts] balloon drag -sign(v) drag_coef v^2 per world axis: none, as the authors run their simulation;
+    # HARDWARE_DRAG caps how high a high-gcr robot flies (docs/facts.md "Buoyancy and drag", docs/capability)
     drag_coef: float = 0.0
-    # QUIRK: their code adds a torque r x F, r = 0.38 m from the neck along the balloon's axis (rotating with
-    # it), so lift acts as if 0.76 m above the neck: an extra uprighting torque when the balloon tilts.
-    quirk_buoyancy_torque: bool = False
+    quirk_buoyancy_torque: bool = False   # QUIRK: the authors' uprighting torque on the balloon (quirk_torque)
     gravity: float = 9.81
     # start pose  [facts]
     start_hip_deg: float = 1.0
     start_knee_deg: float = 27.35
     start_z: float = 1.2
-    # friction  [facts]: PhysX combines two materials by the mode of higher priority. Their ground uses
-    # 'multiply' (0.5 x the robot's default 0.5 = 0.25); the box keeps the default material (0.5); the ramp's
-    # material 0.8 meets the robot's 0.5 under the default 'average' (0.65). PyBullet multiplies the two bodies'
-    # lateral frictions, so the robot gets 1.0 and each surface the product.
+    # friction  [facts]: PyBullet multiplies two bodies' frictions, so the robot gets 1.0 and each surface what
+    # PhysX gives its contact with the robot: ground 0.5 x 0.5, box 0.5, ramp (0.8 + 0.5) / 2 (facts "Friction")
     friction_robot: float = 1.0
     friction_ground: float = 0.25
     friction_obstacle: float = 0.5
@@ -353,80 +311,42 @@ class BalluConfig:
     w_jump: float = 1.0
     c_jump: float = 1.73
     reward_form: str = "paper"            # "paper": -||g-s||^2 and v_x; "code": the authors' terms (see `reward`)
-    # [facts, an option] the authors' schedule: for the first `warmup_steps` control steps of training (all lanes
-    # together; ppo.train tells the env through `schedule`) the curriculum holds every lane's level and r_nav is
-    # off, then r_nav ramps in linearly over the next `warmup_steps`. They do it for 100 of 1,500 updates; 0 = off.
+    # [facts, an option] the authors' warm-up: the first `warmup_steps` control steps of training (`schedule`) hold
+    # every lane's level with r_nav off, the next ramp r_nav in (theirs: 100 of 1,500 updates). 0 = off.
     warmup_steps: int = 0
-    # [paper / facts] what the policy observes (OBS_FORMS, `obs_names`): "paper" = the paper's text (base
-    # velocities, joints, last action) plus the task cue and the design; "code" = the terms the authors'
-    # policies observed (their obstacle / ramp environment configurations): pelvis position, the knees' distances
-    # to the box edge, no base angular velocity; "code_vel" [facts + ours, the default] = "code" with the paper's
-    # base velocities in front: measured best on both tasks (e2e MLP J at 2 M steps, 3 seeds: obstacle 24.3 +- 0.3
-    # cm against the paper form's 18.5 +- 1.7, ramp 30.0 +- 1.2 deg against 28.9 +- 1.5; docs/ppo_protocol/README.md,
-    # "The authors' MDP").
+    # [paper / facts] the observation (OBS_FORMS): "paper" = the paper's text plus the task cue and the design;
+    # "code" = what the authors' policies observed (pelvis position, knees to the box edge, no angular velocity);
+    # "code_vel" [facts + ours, the default] = "code" after the paper's base velocities: the best on both tasks
+    # (docs/ppo_protocol, "The authors' MDP").
     obs: str = "code_vel"
-    # [ours] per-step reward x control dt, as stock Isaac Lab's reward manager does. The authors' fork divides
-    # the sum by dt again (its per-step reward is unscaled): that is reward_dt_scale=False [facts]. Kept
-    # because every PPO setting here was tuned at this scale (docs/ppo_protocol screens the reward scale).
+    # [ours] reward x control dt, as stock Isaac Lab (the authors' fork: False [facts]); PPO was tuned at it
     reward_dt_scale: bool = True
     # safety limits [facts]: end an episode on non-finite state, pelvis speed > 10 m/s or z > 5 m
     max_speed: float = 10.0
     max_z: float = 5.0
-    # [ours] lanes per PyBullet world (client), all at the same spot. One lane per world: each world picks its
-    # own substeps (below), so a lane's trajectory never depends on its world-mates, in training as in `score`.
-    # Bullet's broadphase pairs every overlapping bounding box, so stacked lanes cost ~B^2, while each world
-    # costs a fixed overhead per step: 16 lanes on one core, 16 x 1 ran within the VM's noise of 4 x 4
-    # (`python ballu.py --bench` prints the sweep).
+    # [ours] lanes per PyBullet world, all at one spot. One: each world picks its own substeps, so a lane's
+    # trajectory never depends on world-mates; as fast as stacking (docs/speed; the sweep: python ballu.py --bench).
     lanes_per_world: int = 1
-    # [ours] episodes a training lane keeps a design drawn by its design sampler before it draws the next. The
-    # curriculum level is the lane's: with a new design every episode (1) a lane's level follows the average
-    # design, so a design that could clear 38 cm open loop trains at the ~16 cm the average one clears
-    # (docs/ppo_protocol). Holding a design lets the level climb to what that design allows; the authors fix each
-    # env's design for the whole run [facts]. Screened on the obstacle, 3 seeds: hold 10 and 40 scored no higher at
-    # 1 M steps (-0.1 +- 2.0 and -1.2 +- 0.6 cm against 1), so 1 stays. Scoring is unaffected.
+    # [ours] episodes a training lane keeps a sampled design (the authors: the whole run [facts]); docs/ppo_protocol
     design_hold: int = 1
-    # [facts] the authors' training starts each env's first episode at a random step of its 20 s
-    # (rsl_rl's init_at_random_ep_len), so the envs' episodes do not all begin and end together: with 32 lanes
-    # reset at once, a 64-step rollout would hold the same ~3 s of every episode (only approaches, or only
-    # the box). Off by default: screened, -0.3 +- 0.8 cm at 1 M steps, 3 seeds (docs/ppo_protocol); `score`
-    # always plays whole episodes.
+    # [facts, an option] a lane's first training episode starts at a random step of its 20 s (rsl_rl's
+    # init_at_random_ep_len); off, screened without gain (docs/ppo_protocol). `score` plays whole episodes.
     random_first_episode: bool = False
-    # [ours, an option] a low-pass filter on the servo command: each control step applies
-    # beta * (last applied action) + (1 - beta) * (new action clipped to [0, 1]), and the observation's "last
-    # action" is the applied one. White policy noise then moves the knees as noise correlated in time (what the
-    # robot feels), while PPO's log-probabilities and KL stay those of the Gaussian, so the adaptive rate is
-    # not starved as it was with correlated noise in the policy (docs/ppo_protocol). beta = exp(-2 pi f / 20 Hz)
-    # for a cut-off f: 0.53 at 2 Hz, 0.21 at 5 Hz. 0 = off (the paper's env).
+    # [ours, an option] a low-pass filter on the servo command: beta * last applied + (1 - beta) * new (clipped to
+    # [0, 1]), observed as the last action; PPO's probabilities stay the Gaussian's (docs/ppo_protocol).
+    # beta = exp(-2 pi f / 20 Hz) for a cut-off f: 0.53 at 2 Hz, 0.21 at 5 Hz. 0 = off (the paper's env).
     action_smoothing: float = 0.0
-    # [ours, an option] Policies Modulating Trajectory Generators (Iscen et al. 2018): the policy acts with 4
-    # numbers (c_l, c_r, f, A), and knee k gets c_k + 0.5 A sin(2 pi phase) (A clipped to [0, 1]; the result to
-    # the servo range): a pump of both knees together, which open-loop search finds clearing 13-62 cm on the
-    # protocol's designs (docs/capability), around centres c_k the policy sets. The phase advances by
-    # tg_freq[0] + f (tg_freq[1] - tg_freq[0]) (f clipped to [0, 1]) per second; the observation shows its sine
-    # and cosine. A policy's mean action 0.5 starts as a 2.75 Hz pump of half amplitude. Off: the paper's two
-    # knee commands.
+    # [ours, an option] Policies Modulating Trajectory Generators (Iscen et al. 2018): 4 actions pump both knees
+    # (`tg_command`; the pump: docs/capability). Off: the paper's two knee commands.
     tg: bool = False
     tg_freq: tuple = (0.5, 5.0)           # Hz for f = 0 .. 1: pump periods of 40 .. 4 control steps
-    # [ours] terrain width across the lane. The facts give the obstacle 2 m; with 2 m a PPO policy learned to
-    # walk around the ramp (1.7 m sideways, then forward beside it). 10 m makes that impossible in 20 s.
-    terrain_width: float = 10.0
+    terrain_width: float = 10.0           # [ours] m across the lane (facts' obstacle 2 m): no walking around it
     solver_iterations: int = 10           # [ours] PyBullet contact solver iterations (measured stable)
-    # Stability with the instant knee target [ours], measured by
-    # `python -m experiments.ballu_capability --audit 200` (random open-loop bang-bang actions on random D3
-    # designs; docs/capability): with the facts' bare robot 45 % of episodes blew up.
-    # - pelvis_inertia: the pelvis is a 2 g rod spinning freely about the hip axis (passive neck and hips),
-    #   pitch inertia 2.9e-8 kg m^2; it whirled at PyBullet's 100 rad/s joint-speed cap and exploded. A floor
-    #   of 1e-4 on its three axes (a free axle; the legs' inertia about the hips is 8e-5..5e-4 each) ends that.
-    #   The limbs keep their true inertia.
-    # - substeps: Bullet activates a joint-limit constraint only once the joint is already past the limit,
-    #   so a knee slammed at 10-30 rad/s overshoots by v dt (up to 0.17 rad at 200 Hz). PyBullet substeps
-    #   (knee torques and balloon forces held over the 5 ms step) shrink dt. Adaptive: `substeps` (4) in a
-    #   physics step where every joint is slow and clear of its limits, `substeps_fine` (8) where some joint
-    #   moves faster than `fine_speed` or would cross a limit within the step. It passes the audit as fixed 8
-    #   substeps do, at ~1.7x their env rate; plain 4 overshoots (docs/capability). fine_speed 10 rad/s: its
-    #   200-episode energy rises match fixed 8's (99th percentile 3.35 against 3.37 mJ; 15 rad/s: 4.05) at the
-    #   same speed within the machine's noise. substeps_fine = substeps gives a fixed count. Tried without effect
-    #   on the overshoot: erp 0-0.9, 50 solver iterations, the PGS and Dantzig MLCP solvers.
+    # Stability with the instant knee target [ours] (docs/capability; docs/choices.md):
+    # - pelvis_inertia: a floor on the inertia of the pelvis, a 2 g rod spinning freely (passive hips and neck).
+    # - substeps: Bullet enforces a joint limit only once a joint is past it, so PyBullet substeps shrink a fast
+    #   knee's overshoot (torques and forces held over them): `substeps_fine` in a physics step where some joint
+    #   is faster than `fine_speed` or would cross a limit, else `substeps`; equal = a fixed count.
     pelvis_inertia: float = 1e-4
     substeps: int = 4
     substeps_fine: int = 8
@@ -441,11 +361,6 @@ class BalluConfig:
         return self.decimation / self.physics_hz
 
 
-# The robot before the simulator matched the authors' current one: balloon drag, 45 deg spring preload, each
-# surface's friction as its material alone (robot 1.0), no passive damping, fixed 8 substeps in worlds of 4 lanes.
-# Kept to measure against (the bench, docs/capability), not as an option to train with.
-PREVIOUS_ROBOT = dict(drag_coef=HARDWARE_DRAG, spring_preload=math.pi / 4, friction_ground=0.5,
-                      friction_ramp=0.8, passive_damping=0.0, substeps=8, substeps_fine=8, lanes_per_world=4)
 # ----------------------------------------------------------------------------------------------------------
 # 3. The robot: mass properties and URDF
 # ----------------------------------------------------------------------------------------------------------
@@ -465,10 +380,8 @@ def _cyl(m, r, h):
 
 def mass_properties(design, cfg: BalluConfig = BalluConfig()) -> dict:
     """Mass, centre of mass (z in the link frame) and inertia diagonal of each link: mass = volume x density.
-
-    The tibia link carries the tibia cylinder, the electronics cylinder at its end and the foot sphere
-    (one rigid body, so no fixed joints cost solver time). [facts]
-    """
+    The tibia link carries the tibia cylinder, the electronics cylinder at its end and the foot sphere (one rigid
+    body, so no fixed joints cost solver time). [facts]"""
     l_f, l_t = float(design[0]), float(design[1])
     r = cfg.limb_radius
     vol = lambda rad, h: math.pi * rad * rad * h
@@ -496,10 +409,8 @@ def mass_properties(design, cfg: BalluConfig = BalluConfig()) -> dict:
 
 
 def robot_urdf(design, cfg: BalluConfig = BalluConfig()) -> str:
-    """URDF text for one design: pelvis root; passive neck and hips; spring/tendon knees (torque driven).
-
-    No URDF joint damping: on these tiny inertias it makes PyBullet explode. [facts]
-    """
+    """URDF text for one design: pelvis root; passive neck and hips; spring/tendon knees (torque driven). No URDF
+    joint damping: on these tiny inertias it makes PyBullet explode. [facts]"""
     l_f, l_t = float(design[0]), float(design[1])
     mp_ = mass_properties(design, cfg)
     r = cfg.limb_radius
@@ -554,11 +465,9 @@ def servo_target(action):
 
 def knee_torque(q: float, qdot: float, q_star: float, spcf: float, cfg: BalluConfig = BalluConfig()) -> float:
     """Knee torque of two springs (toward a straight leg) plus a tendon that can only pull. [facts]
-
     tau_spring = -2 k (q + q0) - 0.001 qdot (q0 = 72.35 deg);  tau_pd = max(0, 1.0 (q* - q) + 0.08 clip(-qdot, -7.48, 7.48));
-    tau = clip(tau_spring + tau_pd, -0.0848, 0.0848).  The D term sees the knee velocity clipped to the
-    servo's speed [facts]. Plain floats: it runs per knee per physics step.
-    """
+    tau = clip(tau_spring + tau_pd, -0.0848, 0.0848): the D term sees the knee velocity clipped to the servo's
+    speed [facts]. Plain floats: it runs per knee per physics step."""
     v = cfg.servo_speed
     tau_spring = -2.0 * spcf * (q + cfg.spring_preload) - cfg.spring_damping * qdot
     tau_pd = max(0.0, cfg.pd_p * (q_star - q) + cfg.pd_d * min(v, max(-v, -qdot)))
@@ -574,11 +483,8 @@ def balloon_force(gcr: float, mass: float, vel, cfg: BalluConfig = BalluConfig()
 
 
 def quirk_torque(balloon_orn, force, cfg: BalluConfig = BalluConfig()) -> list:
-    """QUIRK of the authors' code: torque r x F, r = 0.38 m along the balloon's own axis (rotating with it).
-
-    Added to the force at the balloon's centre, lift acts as if 0.76 m above the neck: when the balloon tilts,
-    r x lift turns it back upright. Off by default (`quirk_buoyancy_torque`). [facts, QUIRK]
-    """
+    """QUIRK of the authors' code: torque r x F, r = 0.38 m along the balloon's own axis (rotating with it): lift
+    acts as if 0.76 m above the neck, turning a tilted balloon upright. Off (`quirk_buoyancy_torque`). [facts]"""
     x, y, z, w = balloon_orn
     r = cfg.balloon_above_neck
     rx, ry, rz = r * 2 * (x * z + w * y), r * 2 * (y * z - w * x), r * (1 - 2 * (x * x + y * y))  # R (0, 0, r)
@@ -631,7 +537,6 @@ FOOT_POINT_BELOW_TIBIA = 0.034   # [facts] the code reward's foot point: 3.4 cm 
 
 def reward(task, cfg: BalluConfig, s: LaneState, levels, l_t, nav_scale=1.0):
     """Obstacle: w1 r_nav + w2 r_vel + w3 (e^{c z_toe} - 1) [paper eq. 4]; ramp: w1 r_nav + w2 r_vel.
-
     reward_form="paper" (default): r_nav = -||g - s||^2 with s the pelvis in the ground plane, r_vel = v_x (the
     pelvis velocity along world x, toward the goal [ours]: the pelvis spins freely, so its own x axis is no
     heading), z_toe the lower foot tip's height above the terrain under it.
@@ -640,8 +545,7 @@ def reward(task, cfg: BalluConfig, s: LaneState, levels, l_t, nav_scale=1.0):
     (their servo horns); r_vel = v_x capped (0 above 0.8 m/s, e^v - 1 below 0); z_toe the lower of the two
     points FOOT_POINT_BELOW_TIBIA below the tibia ends, less the box height only while both lie over the box,
     the jump term 0 above 1.8 m. `nav_scale` multiplies r_nav (the warm-up, BalluConfig.warmup_steps); `l_t`
-    is each lane's tibia length.
-    """
+    is each lane's tibia length."""
     goal, x, vx = task_geometry(task)["goal"], s.pos[:, 0], s.vel[:, 0]
     if cfg.reward_form == "paper":
         dist2 = (goal - x) ** 2 + s.pos[:, 1] ** 2   # every lane runs along y = 0
@@ -669,8 +573,9 @@ def reward(task, cfg: BalluConfig, s: LaneState, levels, l_t, nav_scale=1.0):
 
 
 def tg_command(a, phase, cfg: BalluConfig):
-    """The trajectory generator (cfg.tg) [ours]: actions (c_l, c_r, f, A) and the phases (cycles) of their
-    lanes -> the two knee commands and the advanced phases."""
+    """The trajectory generator (cfg.tg) [ours]: actions (c_l, c_r, f, A) and the phases (cycles) of their lanes
+    -> the knee commands c_k + 0.5 A sin(2 pi phase) (A, f and the result clipped to [0, 1]) and the phases
+    advanced at tg_freq[0] + f (tg_freq[1] - tg_freq[0]) Hz. A mean action 0.5 starts a 2.75 Hz half pump."""
     lo, hi = cfg.tg_freq
     phase = (phase + (lo + (hi - lo) * np.clip(a[:, 2], 0, 1)) * cfg.control_dt) % 1.0
     swing = 0.5 * np.clip(a[:, 3], 0, 1) * np.sin(2 * np.pi * phase)
@@ -700,7 +605,7 @@ def to_base_frame(quat, v):
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. BalluEnv: N robots, one lane each, in worlds of a few lanes
+# 6. BalluEnv: N robots, one lane each, in PyBullet worlds (one lane per world by default)
 # ----------------------------------------------------------------------------------------------------------
 _JOINT_NAMES = ("neck", "hip_l", "hip_r", "knee_l", "knee_r")
 # The observation's blocks, each a list of entry names; a form (BalluConfig.obs) lists the blocks in order.
@@ -754,10 +659,9 @@ def obs_config(names, task: str = "obstacle") -> BalluConfig:
 
 
 def policy_config(policy, task: str, cfg: BalluConfig | None = None) -> BalluConfig:
-    """The BalluConfig a policy plays `task` on: `cfg` if given, else the observation it trained with (a learned
-    policy keeps its entries' names: ppo.PolicyFn.obs_names; one from a checkpoint older than the names observed
-    the paper's form), else the default. A policy that observed other entries than cfg gives is a clear error:
-    by name, or by count for a checkpoint without names."""
+    """The BalluConfig a policy plays `task` on: `cfg` if given, else the observation it trained with (its entries'
+    names, ppo.PolicyFn.obs_names; a checkpoint older than the names observed the paper's form), else the default.
+    A policy that observed other entries than cfg gives is a clear error, by name (or count, without names)."""
     if cfg is None:
         cfg = obs_config(policy.obs_names, task) if hasattr(policy, "obs_names") else BalluConfig()
     cfg = replace(cfg, task=task)
@@ -790,8 +694,7 @@ _LIMITS = tuple(map(tuple, JOINT_LIMITS.tolist()))   # plain floats for the per-
 
 def needs_fine_substeps(joint_states, dt: float, speed: float) -> bool:
     """Adaptive substeps [ours]: True if some joint (JOINTS order, PyBullet joint states) moves faster than
-    `speed` rad/s or would cross a limit within dt at its present speed. Bullet activates a limit only once the
-    joint is past it, so such a step needs short substeps to keep the overshoot small (BalluConfig.substeps)."""
+    `speed` rad/s or would cross a limit within dt at its present speed (BalluConfig.substeps)."""
     for (lo, hi), st in zip(_LIMITS, joint_states):
         q, qd = st[0], st[1]
         if qd > speed or qd < -speed or not lo <= q + qd * dt <= hi:
@@ -849,9 +752,8 @@ class _World:
         return body
 
     def load_robot(self, body: int, urdf_path: str, bit: int) -> int:
-        """A robot loaded from `urdf_path` in place of `body` (-1: none yet): the robot's friction, no PyBullet
-        damping [facts: see passive_damping], collisions with the ground and bit `bit`, velocity motors off
-        (force 0) so torque control acts alone. Returns its body id."""
+        """A robot loaded from `urdf_path` in place of `body` (-1: none yet), its id: the robot's friction, no
+        PyBullet damping [facts: passive_damping], collisions with ground and bit `bit`, velocity motors off."""
         cfg, p = self.cfg, self.p
         if body >= 0:
             p.removeBody(body)
@@ -909,11 +811,9 @@ class _ExactResume:
     def get_state(self) -> list | None:
         """What each lane needs to go on exactly from here, in plain types (a torch checkpoint loads them with
         weights_only; the actions as float64 bytes): its design, level, clock, random stream and its episode's
-        actions so far. [ours] Not PyBullet's own state: saveState/restoreState does not restore contacts
-        exactly (restored onto the very world it was saved from, a run diverged within 1-2 control steps at 2 of
-        3 save points, docs/ppo_protocol "Resumed runs"). An episode depends on nothing before its start (the
-        robot is dropped from start_z, so no contact survives a reset), so set_state replays the episode (test:
-        bit for bit). None where lanes share worlds (lanes_per_world > 1: a world-mate's replay would move them)."""
+        actions so far. [ours] Not PyBullet's saveState, which does not restore contacts exactly (docs/ppo_protocol
+        "Resumed runs"): an episode depends on nothing before its start (the robot is dropped from start_z), so
+        set_state replays the episode (test: bit for bit). None where lanes share worlds (lanes_per_world > 1)."""
         if self.cfg.lanes_per_world != 1:
             return None
         return [{"id": int(self.lane_ids[i]), "design": self.designs[i].tolist(), "level": int(self.levels[i]),
@@ -960,21 +860,15 @@ class _ExactResume:
 
 
 class BalluEnv(_ExactResume):
-    """N BALLU robots, one lane each, stepped together in PyBullet worlds (DIRECT mode, no GUI).
-
-    Lanes are grouped into worlds of `cfg.lanes_per_world`. Within a world all lanes lie on top of each other
-    at y = 0, each with its own terrain body and its own collision-filter bit, so a robot touches only the
-    ground plane and its own terrain. Every lane sits at the same coordinates because this chaotic system turns
-    floating-point rounding into different trajectories (a lane offset sideways rounds its contacts
-    differently). Without contacts a lane's trajectory is bit-identical in any world, alone or with any
-    neighbours; once robots touch their boxes it can depend on the world-mates (see lanes_per_world). Each lane
-    has its own design, curriculum level and random generator (seeded from (seed, lane id)).
-
-    Designs of reset lanes come from `design_sampler(rng, n) -> (n, 4)` if one is set (training: a new draw
-    every `cfg.design_hold` episodes, and at every full reset), else a lane keeps its design (scoring). With
-    `curriculum=True` each finished episode moves the lane's level. Read as reset, step, observe, physics; the
-    saved state that resumes a killed training exactly (get_state, set_state) is _ExactResume's.
-    """
+    """N BALLU robots, one lane each, stepped together in PyBullet worlds (DIRECT mode, no GUI) of
+    `cfg.lanes_per_world` lanes (one by default), which lie on top of each other at y = 0, each with its own
+    terrain body and collision-filter bit, so a robot touches only the ground and its own terrain: a lane offset
+    sideways would round its contacts differently, and this chaotic system turns rounding into different
+    trajectories. Each lane has its own design, curriculum level and random generator (seeded from (seed, lane
+    id)). Reset lanes draw designs from `design_sampler(rng, n) -> (n, 4)` if one is set (training: every
+    `cfg.design_hold` episodes and at every full reset), else keep theirs (scoring). With `curriculum=True` each
+    finished episode moves the lane's level. Read as reset, step, observe, physics; get_state and set_state
+    (exact resume of a killed training) are _ExactResume's."""
 
     def __init__(self, num_envs: int = 1, cfg: BalluConfig = BalluConfig(), lane_ids=None,
                  curriculum: bool = True, design_sampler=None):
@@ -1103,8 +997,7 @@ class BalluEnv(_ExactResume):
         truncated = (self.t >= cfg.episode_steps) & ~terminated
         obs = self.observe(state)
         done = terminated | truncated
-        # info always holds every key (rows of unfinished lanes masked by "_final_obs"), so worker
-        # processes' infos concatenate without special cases.
+        # info always holds every key (rows of unfinished lanes masked by "_final_obs"): workers' infos concatenate
         info = {"final_obs": np.where(done[:, None], obs, 0.0).astype(np.float32), "_final_obs": done,
                 "final_x": np.where(done, pos[:, 0], np.nan),
                 "episode_return": np.where(done, self.ep_return, np.nan),
@@ -1186,14 +1079,10 @@ class BalluEnv(_ExactResume):
     # -- physics: the hot loop -----------------------------------------------------------------------------
     def _physics_step(self):
         """One 200 Hz step: per robot, read joints and balloon, apply joint torques and balloon forces; step.
-
-        Knee target: the servo angle x 100/180, set at once from the last action [facts], or moved at <= the
-        servo speed if `servo_slew` (hardware-like option). Hips and neck get their passive damping. Each world
-        (one lane by default) steps with `substeps_fine` substeps if some joint is fast or near a limit, else
-        `substeps` (see BalluConfig). Two PyBullet calls per robot to read and two to write, on the module with
-        the client id (the BulletClient wrapper costs more per call than the calls themselves); the per-robot
-        arithmetic is on plain floats, which beats numpy dispatch at these sizes.
-        """
+        Knee target: the servo angle x 100/180 [facts] (slewed if `servo_slew`); hips and neck get their passive
+        damping; each world takes `substeps_fine` substeps if some joint is fast or near a limit, else `substeps`.
+        Two PyBullet calls per robot to read and two to write, on the module with the client id (BulletClient's
+        wrapper costs more than the calls), and plain-float arithmetic (numpy dispatch costs more at these sizes)."""
         cfg = self.cfg
         get_joints, get_link, apply, control = (pybullet.getJointStates, pybullet.getLinkState,
                                                 pybullet.applyExternalForce, pybullet.setJointMotorControlArray)
@@ -1239,9 +1128,8 @@ class BalluEnv(_ExactResume):
 
     # -- worlds --------------------------------------------------------------------------------------------
     def pause(self, lanes):
-        """Stop stepping the worlds whose every lane is paused (score pauses lanes whose result is known; their
-        robots stand still, their outputs are to be ignored). Other worlds are PyBullet clients of their own,
-        so their trajectories do not change."""
+        """Stop stepping the worlds whose every lane is paused (score's lanes whose result is known: their outputs
+        are to be ignored). Other worlds are PyBullet clients of their own: their trajectories do not change."""
         paused = set(int(i) for i in lanes)
         self._stepping = [w for w in self.worlds if not set(w.lanes) <= paused]
 
@@ -1260,276 +1148,34 @@ class BalluEnv(_ExactResume):
             self._tmp.cleanup()
 
 
-
 # ----------------------------------------------------------------------------------------------------------
-# 7. Worker processes: a pool of long-lived workers, and VecBallu (W workers behind the BalluEnv interface)
+# 7. VecBallu: W worker processes behind the BalluEnv interface (runkit.lanes runs them)
 # ----------------------------------------------------------------------------------------------------------
-def _serve(conn):
-    """A worker's loop: run fn(state, *args) for each request; `state` is this worker's private dict, alive as
-    long as the worker. Exceptions travel back as ('error', traceback)."""
-    import traceback
-    os.environ.setdefault("OMP_NUM_THREADS", "1")   # before torch loads: the workers share the cores, one each
-    state = {}
-    try:
-        while True:
-            msg = conn.recv()
-            if msg is None:
-                break
-            fn, args = msg
-            try:
-                conn.send(("ok", fn(state, *args)))
-            except Exception:
-                conn.send(("error", traceback.format_exc()))
-    except (EOFError, KeyboardInterrupt):
-        pass
-    finally:
-        for v in state.values():
-            if hasattr(v, "close"):
-                v.close()
-
-
-class WorkerPool:
-    """`workers` long-lived spawned processes that run top-level functions fn(state, *args) side by side.
-
-    Start-up (a fresh interpreter importing numpy, PyBullet and often torch) costs seconds, so a pool is made
-    once and reused: VecBallu keeps one per env (each worker's `state` holds its BalluEnv), and `score` and
-    the open-loop tools share one per worker count (`shared_pool`). A worker that dies raises RuntimeError in
-    the caller instead of hanging.
-    """
-
-    def __init__(self, workers: int = 2, timeout: float = 600.0):
-        if not isinstance(workers, (int, np.integer)) or workers < 1:
-            raise ValueError(f"workers={workers!r} must be an integer >= 1")
-        ctx = mp.get_context("spawn")   # no fork: the parent may hold torch threads
-        self.timeout, self.conns, self.procs = timeout, [], []
-        for _ in range(workers):
-            a, b = ctx.Pipe()
-            proc = ctx.Process(target=_serve, args=(b,), daemon=True)
-            proc.start()
-            b.close()
-            self.conns.append(a)
-            self.procs.append(proc)
-
-    @property
-    def workers(self) -> int:
-        return len(self.procs)
-
-    def _recv(self, k):
-        conn, proc = self.conns[k], self.procs[k]
-        t0 = time.monotonic()
-        while not conn.poll(0.5):
-            if not proc.is_alive():
-                raise RuntimeError(f"BALLU worker {k} died (exit code {proc.exitcode})")
-            if time.monotonic() - t0 > self.timeout:
-                raise RuntimeError(f"BALLU worker {k} did not answer within {self.timeout} s")
-        try:
-            status, out = conn.recv()
-        except (EOFError, OSError):
-            proc.join(timeout=1)
-            raise RuntimeError(f"BALLU worker {k} died (exit code {proc.exitcode})") from None
-        if status == "error":
-            raise RuntimeError(f"BALLU worker {k} failed:\n{out}")
-        return out
-
-    def call(self, fn, args: list) -> list:
-        """fn(state_k, *args[k]) in workers k = 0..len(args)-1 at once; their results, in order. `fn` must be a
-        top-level function (pickled by name)."""
-        if len(args) > len(self.conns):
-            raise ValueError(f"call got {len(args)} argument tuples for {len(self.conns)} workers")
-        for conn, a in zip(self.conns, args):
-            try:
-                conn.send((fn, tuple(a)))
-            except (BrokenPipeError, OSError):
-                pass   # _recv reports the dead worker
-        return [self._recv(k) for k in range(len(args))]
-
-    def close(self):
-        for conn in self.conns:
-            try:
-                conn.send(None)
-            except (BrokenPipeError, OSError):
-                pass
-        for proc in self.procs:
-            proc.join(timeout=5)
-            if proc.is_alive():
-                proc.terminate()
-        self.conns, self.procs = [], []
-
-    def __del__(self):
-        if getattr(self, "procs", None):
-            self.close()
-
-
-class InProcess:
-    """A one-worker WorkerPool that is this process: the same fn(state, *args) calls, with the arguments
-    copied as a worker would receive them (so a stateful policy, e.g. PumpGait's phase counter, is not advanced
-    in the caller's hands: workers=1 and workers=2 give the same result)."""
-
-    def __init__(self):
-        self.state, self.workers = {}, 1
-
-    def call(self, fn, args: list) -> list:
-        if len(args) > 1:
-            raise ValueError(f"call got {len(args)} argument tuples for 1 worker")
-        return [fn(self.state, *copy.deepcopy(a)) for a in args]
-
-
-def plain_call(state, fn, args):
-    """Run a plain top-level function fn(*args) in a worker (its state unused)."""
-    return fn(*args)
-
-
-_SHARED_POOLS: dict = {}
-
-
-def shared_pool(workers: int) -> WorkerPool:
-    """The process-wide pool of `workers` workers for scoring and the open-loop tools, started on first use
-    and closed at exit; a dead one is replaced."""
-    pool = _SHARED_POOLS.get(workers)
-    if pool is None or not all(p.is_alive() for p in pool.procs):
-        if pool is not None:
-            pool.close()
-        pool = _SHARED_POOLS[workers] = WorkerPool(workers)
-    return pool
-
-
-def close_shared_pools():
-    for pool in _SHARED_POOLS.values():
-        pool.close()
-    _SHARED_POOLS.clear()
-
-
-atexit.register(close_shared_pools)
-
-
-# what a VecBallu worker does with the BalluEnv in its state
-def _env_open(state, num_envs, cfg, lane_ids, curriculum):
-    state["env"] = BalluEnv(num_envs, cfg, lane_ids=lane_ids, curriculum=curriculum)
-
-
-def _env_call(state, method, *args, **kw):
-    return getattr(state["env"], method)(*args, **kw)
-
-
-def _env_get(state, name):
-    return getattr(state["env"], name)
-
-
-def _env_set(state, name, value):
-    setattr(state["env"], name, value)
-
-
-def _env_run(state, fn, args):
-    return fn(state["env"], *args)
-
-
-class VecBallu:
-    """`num_envs` lanes split over `workers` processes (a WorkerPool whose workers hold one BalluEnv each);
-    the same interface as BalluEnv. Lane ids are global, so a lane's random generator and trajectory do not
-    depend on the worker count.
-    """
+class VecBallu(VecEnv):
+    """`num_envs` lanes split over `workers` processes, each holding a BalluEnv of its lanes (runkit.lanes.VecEnv),
+    behind BalluEnv's interface; lane ids are global, so a lane's trajectory does not depend on the worker count."""
+    lane_options = {"designs": 1, "levels": 0}   # reset options given per lane: (N, 4) designs, (N,) levels
+    mirror = ("obs_dim", "act_dim", "obs_names")
+    worker_name = "BALLU worker"
 
     def __init__(self, num_envs: int, workers: int = 2, cfg: BalluConfig = BalluConfig(),
                  curriculum: bool = True, design_sampler=None, timeout: float = 600.0):
-        if not isinstance(workers, (int, np.integer)) or workers < 1:
-            raise ValueError(f"workers={workers!r} must be an integer >= 1")
-        if not isinstance(num_envs, (int, np.integer)) or num_envs < workers:
-            raise ValueError(f"num_envs={num_envs!r} must be an integer >= workers={workers}")
+        check_split(num_envs, workers)
         check_config(cfg)
-        self.num_envs, self.cfg = int(num_envs), cfg
-        self.obs_dim, self.act_dim = dims(cfg)
-        self.obs_names = obs_names(cfg)   # kept in a checkpoint: a policy runs only on what it observed
-        self.splits = np.array_split(np.arange(num_envs), workers)
-        self.pool = WorkerPool(workers, timeout)
-        self.pool.call(_env_open, [(len(ids), cfg, ids, curriculum) for ids in self.splits])
+        self.cfg = cfg
+        super().__init__(BalluEnv, num_envs, workers, timeout, cfg=cfg, curriculum=curriculum)
         if design_sampler is not None:
             self.set_design_sampler(design_sampler)
 
-    @property
-    def procs(self):
-        return self.pool.procs
-
-    def _each(self, fn, *args):
-        return self.pool.call(fn, [args] * self.pool.workers)
-
-    def _split(self, x):
-        return [None if x is None else np.asarray(x)[ids] for ids in self.splits]
-
     def set_design_sampler(self, sampler):
-        self._each(_env_set, "design_sampler", sampler)
+        self.each_set("design_sampler", sampler)
 
     def schedule(self, train_steps: int):
-        self._each(_env_call, "schedule", train_steps)
+        self.each_call("schedule", train_steps)
 
-    @property
-    def levels(self):
-        return np.concatenate(self._each(_env_get, "levels"))
-
-    @property
-    def sim_seconds(self):
-        return np.array(self._each(_env_get, "sim_seconds"))
-
-    @property
-    def designs(self):
-        return np.concatenate(self._each(_env_get, "designs"))
-
-    def reset(self, seed=None, options=None):
-        options = dict(options or {})
-        per = []
-        for ids in self.splits:
-            o = dict(options)
-            for key in ("designs", "levels"):
-                if o.get(key) is not None and np.ndim(o[key]) > (1 if key == "designs" else 0):
-                    o[key] = np.asarray(o[key])[ids]
-            per.append(("reset", seed, o))
-        outs = self.pool.call(_env_call, per)
-        return np.concatenate([o[0] for o in outs]), _merge([o[1] for o in outs])
-
-    def get_state(self) -> list | None:
-        """The workers' BalluEnv.get_state(), lane by lane in order (None where lanes share worlds)."""
-        parts = self._each(_env_call, "get_state")
-        return None if None in parts else [lane for part in parts for lane in part]
-
-    def set_state(self, lanes: list):
-        """BalluEnv.set_state in each worker with its lanes' saved state (any worker count: the state is per
-        lane)."""
-        if len(lanes) != self.num_envs:
-            raise ValueError(f"saved state holds {len(lanes)} lanes, this env {self.num_envs}")
-        self.pool.call(_env_call, [("set_state", [lanes[i] for i in ids]) for ids in self.splits])
-
-    def step(self, actions):
-        a = check_actions(actions, self.num_envs, self.act_dim)
-        outs = self.pool.call(_env_call, [("step", part) for part in self._split(a)])
-        return tuple(np.concatenate([o[j] for o in outs]) for j in range(4)) + (_merge([o[4] for o in outs]),)
-
-    @property
-    def parts(self) -> list:
-        """Lane indices of each worker, in order."""
-        return self.splits
-
-    def run(self, fn, args: list) -> list:
-        """fn(worker_env, *args[k]) in every worker k at once; their results, in order. `fn` must be a top-level
-        function (pickled by name). ppo.train rolls out so: each worker steps its lanes with its own policy copy."""
-        if len(args) != self.pool.workers:
-            raise ValueError(f"run needs one argument tuple per worker ({self.pool.workers}), got {len(args)}")
-        return self.pool.call(_env_run, [(fn, tuple(a)) for a in args])
-
-    def close(self):
-        self.pool.close()
-
-
-def check_actions(actions, n: int, act_dim: int = ACT_DIM) -> np.ndarray:
-    """Actions as a float (n, act_dim) array, or a clear error (wrong shape, NaN or inf)."""
-    a = np.asarray(actions, dtype=float)
-    if a.shape != (n, act_dim):
-        raise ValueError(f"actions must have shape ({n}, {act_dim}), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError("actions contain non-finite values (NaN or inf)")
-    return a
-
-
-def _merge(infos):
-    return {k: np.concatenate([np.asarray(i[k]) for i in infos]) for k in infos[0]}
+    levels = property(lambda self: self.gather("levels"))
+    designs = property(lambda self: self.gather("designs"))
+    sim_seconds = property(lambda self: np.array(self.each_get("sim_seconds")))   # one per worker
 
 
 def make_env(num_envs: int, workers: int = 1, cfg: BalluConfig = BalluConfig(), **kw):
@@ -1549,13 +1195,10 @@ stand.pure = True   # row by row, no state: score may reuse its episodes (see sc
 
 
 class PumpGait:
-    """Scripted floor 2: knees pulled fully for half a period, released for the other half.
-
-    mode="sync" pumps both knees together (a hop); mode="alternate" pumps them half a period apart (a walk).
-    `period` is in control steps (20 Hz), a scalar or one per lane, so one scoring run can sweep periods;
-    `mode` may also be one per lane. The phase is a call counter: all lanes of a scoring run start their
-    episodes together.
-    """
+    """Scripted floor 2: knees pulled fully for half a period, released for the other half; mode="sync" pumps
+    both together (a hop), "alternate" half a period apart (a walk). `period` (control steps) and `mode` are a
+    scalar or one per lane, so one scoring run can sweep them. The phase is a call counter: all lanes of a
+    scoring run start their episodes together."""
 
     def __init__(self, period=10, mode="sync", amplitude: float = 1.0):
         self.period = np.asarray(period, dtype=float)
@@ -1579,73 +1222,6 @@ class PumpGait:
         left = np.where(on, self.amplitude, 0.0)
         right = np.where(self.alternate, self.amplitude - left, left)
         return np.broadcast_to(np.stack(np.broadcast_arrays(left, right), -1), (len(obs), ACT_DIM)).copy()
-
-
-def _score_open(state, policy, designs, lane_ids, cfg, start, steps, reuse=False):
-    """Scoring, step 1 (in a worker, or in this process with a local `state`): a fresh env, one lane per design;
-    `steps[e]` = levels episode e moves (see score's `level_steps`); `reuse`: replay known episodes (score)."""
-    n, episodes = len(designs), len(steps)
-    env = BalluEnv(n, cfg, lane_ids=lane_ids, curriculum=True)
-    obs, _ = env.reset(seed=0, options={"designs": designs, "levels": np.full(n, start)})
-    env.level_step = np.full(n, steps[0])   # each lane's current episode's step; moves on as episodes end
-    state["score"] = {"env": env, "policy": policy, "obs": obs, "count": np.zeros(n, dtype=int), "steps": steps,
-                      "final": np.full(n, -1), "x": np.full((n, episodes), np.nan),
-                      "known": [{} for _ in range(n)] if reuse else None, "episodes_played": 0}
-
-
-def _replay_known(s, lanes, levels):
-    """Lanes whose next level was played before: a deterministic policy on a deterministic simulator repeats
-    that episode exactly, and with unit steps the walk's next level depends on the level alone, so the rest of
-    the walk is a cycle through known episodes. Fill it in (final x of each episode, the final level)."""
-    count, x, final, known, episodes = s["count"], s["x"], s["final"], s["known"], len(s["steps"])
-    for i, lv in zip(lanes, levels):
-        lv = int(lv)
-        if lv not in known[i]:
-            continue
-        while count[i] < episodes:
-            lv_next, x[i, count[i]] = known[i][lv]
-            count[i], lv = count[i] + 1, lv_next
-        final[i] = lv
-
-
-def _score_play(state, until):
-    """Scoring, step 2: play until every lane has finished `until` of its episodes; the level after a lane's
-    last episode is its result (-1 until then). Also returns each episode's final pelvis x."""
-    s = state["score"]
-    env, policy, count, final, x, steps = s["env"], s["policy"], s["count"], s["final"], s["x"], s["steps"]
-    episodes, known = len(steps), s["known"]
-    while (np.minimum(count, episodes) < until).any():
-        if known is None:
-            actions = policy(s["obs"])
-        else:   # a pure policy acts row by row: only the lanes still playing are asked
-            playing = count < episodes
-            some = policy(s["obs"][playing])
-            actions = np.zeros((len(count), np.shape(some)[1]))
-            actions[playing] = some
-        s["obs"], _, _, _, info = env.step(actions)
-        done = info["_final_obs"] & (count < episodes)
-        if done.any():
-            ids = np.flatnonzero(done)
-            x[ids, count[ids]] = info["final_x"][ids]
-            s["episodes_played"] += len(ids)
-            if known is not None:   # a blown-up episode is not kept: its level is played again
-                for i in ids[~info["blowup"][ids]]:
-                    known[i][int(info["episode_level"][i])] = (int(info["levels"][i]), float(info["final_x"][i]))
-            count += done
-            env.level_step = steps[np.minimum(count, episodes - 1)]   # the next episode's step
-            hit = done & (count == episodes)
-            final[hit] = info["levels"][hit]
-            if known is not None:
-                more = ids[count[ids] < episodes]
-                _replay_known(s, more, info["levels"][more])
-            env.pause(np.flatnonzero(count >= episodes))   # finished lanes: their worlds stop stepping
-    return final.copy(), x.copy(), s["episodes_played"]
-
-
-def _score_close(state):
-    s = state.pop("score", None)
-    if s is not None:
-        s["env"].close()
 
 
 SCORE_EPISODES = 20                                   # [facts] episodes of the score J
@@ -1677,38 +1253,29 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     one with per-lane settings offers `for_lanes(ids)`, as PumpGait does) plays `episodes` (default 20)
     episodes per design, each moving the lane's level one up or down; the level after the last one is the
     score, in cm (obstacle) or degrees (ramp). [facts]  `cfg` (default: what the policy observed in training,
-    `policy_config`) sets the env; a policy never plays on entries it did not observe. With workers > 1 the
-    designs are split over the long-lived `shared_pool`, each worker playing its lanes with its own copy of the
-    policy (no round trip per step, no process start-up per call). Each design gets a PyBullet world of its own
-    (lanes_per_world = 1)
-    [ours]: a lane's trajectory can depend on which lanes share its world once robots touch the box, and a
-    design's J must not depend on which designs share its call or on the worker count (for a learned policy
-    evaluated row by row, as ppo.PolicyFn is). With `final_x`, also each episode's final pelvis x
+    `policy_config`) sets the env. workers > 1 split the designs over a long-lived pool (runkit.lanes.score_lanes).
+    Each design gets a PyBullet world of its own [ours]: a lane's trajectory can depend on its world-mates once
+    robots touch the box, and J must depend neither on the designs sharing its call nor on the worker count (for
+    a policy evaluated row by row, as ppo.PolicyFn is). `final_x`: also each episode's final pelvis x
     (n, episodes) in m (NaN for a blown-up episode).
 
-    `level_steps` (e.g. (16, 8, 4, 2, 1, 1, 1)): a bisection over levels instead, episode e moving
-    level_steps[e] levels up or down; episodes = len(level_steps). [ours]  Why: the unit walk ends near the
-    level where the policy starts failing, reached one level per 20 s episode; halving steps reach it in
-    ~log2(range) episodes, then a few unit steps settle it as the unit walk does. (16, 8, 4, 2, 1, 1, 1)
-    reaches +-33 levels (the unit walk: +-20) in 7 episodes, ~3x cheaper. Meant for GES's probes; the paper's
-    J (tables, test designs) keeps the unit steps. None (default) = unit steps, exactly the facts' J.
+    `level_steps` (e.g. (16, 8, 4, 2, 1, 1, 1)) [ours]: a bisection over levels, episode e moving level_steps[e]
+    levels; halving steps near the level where the policy starts failing in ~log2(range) episodes, where the unit
+    walk takes one a level: (16, 8, 4, 2, 1, 1, 1) reaches +-33 levels in 7 episodes (unit steps: +-20 in 20).
+    For GES's probes; None (default) = unit steps, exactly the facts' J.
 
-    `reuse` (default: on for a policy marked `pure = True`, as ppo.PolicyFn and `stand` are, with unit steps):
-    play each level of a design's walk once. [ours, exact]  An episode starts from the same reset
-    state, and a pure policy (no state, each row's action from that row alone) on this deterministic simulator
-    plays it the same way every time: measured, 83 of 83 revisited levels ended at a bit-identical pelvis x
-    (an e2e MLP, 8 designs). With unit steps the next level depends on the level alone, so once a walk
-    reaches a level it played before, the rest of it cycles through known episodes: it is filled in, and the
-    design's world stops stepping. The J and every episode's final x are those of playing all 20 (test).
-    A walk that holds its level or swings between two costs 1-2 episodes after it gets there.
-    `stats` (a dict) receives "episodes_played", the episodes actually simulated (what a J costs).
+    `reuse` [ours, exact] (default: on with unit steps for a policy marked `pure = True`, as ppo.PolicyFn and
+    `stand` are): play each level of a design's walk once. A pure policy on this deterministic simulator plays
+    an episode from its reset state the same way every time (docs/choices.md), and with unit steps the next
+    level depends on the level alone, so a walk back at a level it played is filled in and its world stops
+    stepping: J and every final x as playing every episode (test). `stats` (a dict) receives "episodes_played".
     """
     cfg = replace(policy_config(policy, task, cfg), lanes_per_world=1,   # one world per design (above)
                   random_first_episode=False)                            # J plays whole episodes
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
     steps = check_level_steps(level_steps, episodes)
-    episodes, unit = len(steps), bool((steps == 1).all())
+    unit = bool((steps == 1).all())
     if not 0 <= start <= MAX_LEVEL:
         raise ValueError(f"start_level={start!r} must lie in [0, {MAX_LEVEL}]")
     if reuse is None:
@@ -1716,193 +1283,17 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     elif reuse and not unit:
         raise ValueError(f"reuse=True needs unit level steps (the walk's next level from the level alone), "
                          f"got level_steps={level_steps!r}")
-    parts = [ids for ids in np.array_split(np.arange(len(d)), min(workers, len(d))) if len(ids)]
-    part = getattr(policy, "for_lanes", None)   # a policy with per-lane settings hands each worker its part
-    args = [(policy if part is None or len(parts) == 1 else part(ids), d[ids], ids, cfg, start, steps, reuse)
-            for ids in parts]
-    call = (InProcess() if len(parts) == 1 else shared_pool(len(parts))).call
-    try:
-        call(_score_open, args)
-        for until in range(1, episodes + 1):
-            outs = call(_score_play, [(until,)] * len(parts))
-            if progress:
-                progress(f"score {task}: {until * len(d)}/{episodes * len(d)} episodes")
-    except BaseException:
-        with contextlib.suppress(Exception):
-            call(_score_close, [()] * len(parts))
-        raise
-    call(_score_close, [()] * len(parts))
-    j = level_score(task, np.concatenate([o[0] for o in outs]))
+    final, x, played = score_lanes(partial(BalluEnv, cfg=cfg, curriculum=True), policy, d, workers, start, steps,
+                                   reuse, progress, f"score {task}")
+    j = level_score(task, final)
     if stats is not None:
-        stats["episodes_played"] = int(sum(o[2] for o in outs))
-    return (j, np.concatenate([o[1] for o in outs])) if final_x else j
+        stats["episodes_played"] = played
+    return (j, x) if final_x else j
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 9. Command line: motion strip and benchmark
+# 9. Command line: --bench, --strip PNG (experiments/ballu_bench.py)
 # ----------------------------------------------------------------------------------------------------------
-def motion_strip(path, policy=None, task="obstacle", level=30, design=BASELINE, frames=8, cfg=None,
-                 width=360, height=300):
-    """Play one episode with PyBullet's CPU renderer and save `frames` side views as one PNG (paper Fig. 1)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    policy = policy or PumpGait(12)
-    cfg = policy_config(policy, task, cfg)
-    env = BalluEnv(1, cfg, curriculum=False)
-    obs, _ = env.reset(seed=0, options={"designs": design, "levels": level})
-    keep = set(np.linspace(0, cfg.episode_steps - 1, frames).astype(int).tolist())
-    shots, xs = [], []
-    p, b = env.client(0), env.bodies[0]
-    g = task_geometry(task)
-    for t in range(cfg.episode_steps):
-        if t in keep:
-            x = p.getBasePositionAndOrientation(b)[0][0]
-            view = p.computeViewMatrix([x, -3.2, 0.9], [x, 0, 0.7], [0, 0, 1])
-            proj = p.computeProjectionMatrixFOV(50, width / height, 0.1, 10)
-            img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
-                                   lightDirection=[-1, -2, 3], shadow=0)[2]
-            shots.append(np.reshape(img, (height, width, 4))[:, :, :3])
-            xs.append(x)
-        obs, *_, info = env.step(policy(obs))
-    env.close()
-    fig, axes = plt.subplots(1, frames, figsize=(2.2 * frames, 2.4))
-    for ax, im, t, x in zip(axes, shots, sorted(keep), xs):
-        ax.imshow(im)
-        ax.set_title(f"t={t * cfg.control_dt:.1f}s  x={x:.2f}m", fontsize=8)
-        ax.axis("off")
-    h = level_score(task, level)
-    unit = "cm obstacle" if task == "obstacle" else "deg ramp"
-    fig.suptitle(f"BALLU {task}, level {level} ({h:.1f} {unit}), design l_f,l_t,gcr,spcf = "
-                 f"{np.round(np.asarray(design, float), 4).tolist()}; terrain x {g['x0']}..{g['x1']} m, "
-                 f"goal x {g['goal']} m", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def _bench_steps(env, steps: int, seed: int):
-    """Step `env` (here or inside a worker) with uniform random actions; (time inside stepSimulation, wall)."""
-    rng = np.random.default_rng(seed)
-    sim0, t0 = env.sim_seconds, time.perf_counter()
-    for _ in range(steps):
-        env.step(rng.uniform(0, 1, (env.num_envs, ACT_DIM)))
-    return env.sim_seconds - sim0, time.perf_counter() - t0
-
-
-def _bench_env(lanes: int, workers: int, steps: int, cfg: BalluConfig):
-    """Robot-physics-steps/s (200 Hz) of `lanes` lanes per worker, each worker stepping its own lanes:
-    (physics only = steps / time inside stepSimulation, env with all per-step work = steps / wall)."""
-    n = lanes * workers
-    env = BalluEnv(n, cfg) if workers == 1 else VecBallu(n, workers, cfg)
-    try:
-        env.reset(seed=0, options={"designs": BASELINE, "levels": 10})
-        if workers == 1:
-            out = [_bench_steps(env, steps, 0)]
-        else:
-            out = env.run(_bench_steps, [(steps, k) for k in range(workers)])
-    finally:
-        env.close()
-    sim, wall = np.max(np.array(out), axis=0)   # the slowest worker sets the pace
-    robot_steps = n * steps * cfg.decimation
-    return robot_steps / sim, robot_steps / wall
-
-
-def _bench_score(designs: int, workers: int, cfg: BalluConfig):
-    """Robot-physics-steps/s of `score` (pump gaits of 16 periods, 2 short episodes per design)."""
-    periods = np.resize(np.arange(4, 36, 2), designs)
-    t0 = time.perf_counter()
-    score(PumpGait(periods), np.tile(BASELINE, (designs, 1)), cfg.task, episodes=2, start_level=10,
-          workers=workers, cfg=cfg)
-    return designs * 2 * cfg.episode_steps * cfg.decimation / (time.perf_counter() - t0)
-
-
-def bench(lanes: int = 16, workers: int = 2, control_steps: int = 200, repeats: int = 2):
-    """Simulator throughput next to references measured in the same run.
-
-    Physics only: the time inside stepSimulation alone while the same robots move under random actions. Env:
-    all per-step work (forces, torques, state reads, reward, observation). Rates are robot-physics-steps/s
-    at 200 Hz. The reference is PREVIOUS_ROBOT (fixed 8 substeps in worlds of 4 lanes), stepped the same way.
-    Each configuration is measured `repeats` times in alternation (this machine drifts +-20 % within minutes)
-    and the mean is printed. Pool start-up is paid before the scoring rows (the pool is long-lived, so that is
-    how `run_all.py` sees it).
-    """
-    base = BalluConfig()
-    before = replace(base, **PREVIOUS_ROBOT)
-    sweep = [b for b in (1, 2, 4, 8, 16) if b <= lanes]
-    rows = {}
-    for _ in range(repeats):
-        for b in sweep:
-            rows.setdefault(("layout", b), []).append(_bench_env(lanes, 1, control_steps, replace(base, lanes_per_world=b)))
-        rows.setdefault(("before", 1), []).append(_bench_env(lanes, 1, control_steps, before))
-        rows.setdefault(("env", workers), []).append(_bench_env(lanes, workers, control_steps, base))
-        rows.setdefault(("before", workers), []).append(_bench_env(lanes, workers, control_steps, before))
-    short = replace(base, episode_steps=100)
-    _bench_score(workers, workers, short)   # start the shared pool
-    for _ in range(repeats):
-        for w in (1, workers):
-            rows.setdefault(("score", w), []).append((_bench_score(lanes * workers, w, short),))
-    m = {k: np.mean(v, axis=0) for k, v in rows.items()}
-    print(f"layout sweep, {lanes} lanes on 1 core        physics only   env, all per-step work")
-    for b in sweep:
-        raw, env = m[("layout", b)]
-        tag = "   <- BalluConfig.lanes_per_world" if b == base.lanes_per_world else ""
-        print(f"  {lanes // b:2d} world(s) of {b:2d} lane(s)            {raw:10,.0f}/s {env:14,.0f}/s{tag}")
-    raw1, env1 = m[("layout", base.lanes_per_world)]
-    raw2, env2 = m[("env", workers)]
-    rawb1, envb1 = m[("before", 1)]
-    rawb2, envb2 = m[("before", workers)]
-    s1, s2 = m[("score", 1)][0], m[("score", workers)][0]
-    print(f"1 core, {lanes} lanes:               physics only {raw1:8,.0f}/s   env {env1:8,.0f}/s")
-    print(f"  previous robot (8 substeps):   physics only {rawb1:8,.0f}/s   env {envb1:8,.0f}/s   "
-          f"-> default {raw1 / rawb1:.2f}x physics, {env1 / envb1:.2f}x env")
-    print(f"{workers} workers, {lanes} lanes each:     physics only {raw2:8,.0f}/s   env {env2:8,.0f}/s")
-    print(f"  previous robot (8 substeps):   physics only {rawb2:8,.0f}/s   env {envb2:8,.0f}/s   "
-          f"-> default {raw2 / rawb2:.2f}x physics, {env2 / envb2:.2f}x env")
-    print(f"score, {lanes * workers} designs:          1 core {s1:8,.0f}/s   {workers} workers {s2:8,.0f}/s")
-    print(f"env/physics ratio {env1 / raw1:.2f}   (1 core, all per-step work / stepSimulation alone)")
-    print(f"{workers} workers vs 1 core {env2 / env1:.2f}x   (env: each worker steps its own lanes, as ppo.train)")
-    print(f"{workers} workers vs 1 core {s2 / s1:.2f}x   (score: each worker plays its designs)")
-    print(f"({repeats} alternating repeats each; robot-physics-steps per second at 200 Hz; default: adaptive "
-          f"{base.substeps}/{base.substeps_fine} substeps, previous robot: ballu.PREVIOUS_ROBOT)")
-    return m
-
-
-def _main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--bench", action="store_true", help="print simulator throughput")
-    ap.add_argument("--lanes", type=int, default=16, help="lanes per worker in the bench (>= 1)")
-    ap.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
-    ap.add_argument("--strip", metavar="PNG", help="write a motion strip of one pump-gait episode")
-    ap.add_argument("--task", default="obstacle", choices=TASKS)
-    ap.add_argument("--level", type=int, default=30, help=f"terrain level of the strip, 0..{MAX_LEVEL}")
-    ap.add_argument("--design", type=float, nargs=4, default=BASELINE.tolist(), metavar=DESIGN_NAMES)
-    ap.add_argument("--period", type=int, default=12, help="pump gait period in control steps (>= 2)")
-    ap.add_argument("--mode", default="sync", choices=("sync", "alternate"), help="pump gait mode")
-    args = ap.parse_args(argv)
-    if not (args.bench or args.strip):
-        ap.error("nothing to do: give --bench and/or --strip PNG (audit and capability: python -m "
-                 "experiments.ballu_capability; a learned policy's strip: python -m experiments.ppo_ballu strip)")
-    for opt, value, rule, ok in (("--workers", args.workers, ">= 1", args.workers >= 1),
-                                 ("--lanes", args.lanes, ">= 1", args.lanes >= 1),
-                                 ("--level", args.level, f"in [0, {MAX_LEVEL}]", 0 <= args.level <= MAX_LEVEL),
-                                 ("--period", args.period, ">= 2", args.period >= 2)):
-        if not ok:
-            ap.error(f"{opt} {value} must be {rule}")
-    try:
-        check_design(args.design, what="--design")
-    except ValueError as e:
-        ap.error(str(e))
-    if args.bench:
-        bench(args.lanes, args.workers)
-    if args.strip:
-        try:
-            print("wrote", motion_strip(args.strip, PumpGait(args.period, args.mode), args.task, args.level,
-                                        np.array(args.design)))
-        except OSError as e:
-            ap.error(f"--strip {args.strip!r} cannot be written: {e.strerror}")
-
-
 if __name__ == "__main__":
-    _main()
+    from experiments.ballu_bench import main
+    main()

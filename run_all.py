@@ -63,6 +63,7 @@ import ppo
 import tpe
 from report.paper import METHOD_NAMES, PAPER_TABLE2
 from report.figures import _plt, fig_curves, fig_ksens, gait_features, level_of, toe_heights
+from report.strip import motion_strip
 from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_figures, report_ges_runs, report_header,
                            report_ksens, report_table1, report_table2, report_table3, report_territories,
                            report_wall)
@@ -1080,8 +1081,8 @@ def stage_figures(run: Run) -> dict:
         pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
         theta = [pk["peak_design"][n] for n in space.names]
         policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta, run.preset)
-        figs[f"fig1-{t}"] = ballu.motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
-                                               level_of(t, pk["peak"]), space.full(theta)[0])
+        figs[f"fig1-{t}"] = motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
+                                         level_of(t, pk["peak"]), space.full(theta)[0])
     cdir = os.path.join(fdir, "curves")
     os.makedirs(cdir, exist_ok=True)
     for t in TASKS:
@@ -1190,7 +1191,7 @@ def code_hash() -> str:
     """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
     folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
     h = hashlib.sha256(str(RESULTS_FORMAT).encode())
-    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
+    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py"):   # lanes.py: score's workers
         with open(os.path.join(HERE, name), "rb") as fh:
             h.update(fh.read())
     return h.hexdigest()[:16]

@@ -21,10 +21,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from ballu import (BALLOON, BASELINE, D2_CENTRE, HARDWARE_DRAG, JOINT_LIMITS, JOINTS, MAX_LEVEL, PREVIOUS_ROBOT,
-                   TABLE_I_HIGH, TABLE_I_LOW, BalluConfig, BalluEnv, InProcess, PumpGait, check_design,
-                   level_score, plain_call, score, shared_pool, stand, surface_height, task_geometry,
-                   to_base_frame)
+from ballu import (BALLOON, BASELINE, D2_CENTRE, HARDWARE_DRAG, JOINT_LIMITS, JOINTS, MAX_LEVEL, TABLE_I_HIGH,
+                   TABLE_I_LOW, BalluConfig, BalluEnv, PumpGait, check_design, level_score, score, stand,
+                   surface_height, task_geometry, to_base_frame)
+from experiments.ballu_bench import PREVIOUS_ROBOT
+from runkit.lanes import InProcess, plain_call, shared_pool
+
 
 def random_actions(rng, n: int, steps: int, hold=(1, 10)) -> np.ndarray:
     """Open-loop test actions (n, steps, 2): each leg holds a value for 1-10 control steps; half of the values

@@ -18,6 +18,7 @@ import numpy as np
 
 import ballu
 import ppo
+from report.strip import motion_strip
 
 NAMED_DESIGNS = {"baseline": ballu.BASELINE, "d2c": ballu.D2_CENTRE}
 
@@ -138,7 +139,7 @@ def main(argv=None):
         ap.error(f"--policy: {e}")
     design = sampler(np.random.default_rng(0), 1)[0]
     try:
-        print("wrote", ballu.motion_strip(args.png, policy, args.task, args.level, design))
+        print("wrote", motion_strip(args.png, policy, args.task, args.level, design))
     except OSError as e:
         ap.error(f"PNG {args.png!r} cannot be written: {e.strerror}")
 

@@ -13,7 +13,7 @@ box) and the highest toe clearance over the box's height in that zone. Each epis
   too low      jumped, but no toe rose above the box's top edge in front of it
   not onto     a toe rose above the box's top, but no toe ever stood on the box (within 2 cm of its top)
   on, fell     a toe stood on the box, yet the pelvis ended short of 1.0 m (slid or fell back)
---strip films the lowest failing level above the lowest passing one (ballu.motion_strip): where J's walk stops.
+--strip films the lowest failing level above the lowest passing one (report.strip.motion_strip): where J's walk stops.
 """
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ import numpy as np
 import ballu
 import ppo
 from experiments.ppo_ballu import parse_design
+from report.strip import motion_strip
 
 NEAR, ZONE, JUMP = 0.15, 0.30, 0.03   # m: "at the box", the zone in front of it, a jump's least toe rise
 
@@ -109,7 +110,7 @@ def main(argv=None):
     fail = next((r for r in rows[passed[0]:] if r["verdict"] != "pass"), None) if passed else rows[0]
     if args.strip and fail:
         policy = ppo.load_policy(args.policy)
-        print("wrote", ballu.motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10))
+        print("wrote", motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10))
 
 
 if __name__ == "__main__":
