@@ -1,18 +1,20 @@
-"""Gaussian Evolutionary Specialists (GES), paper Sec. IV and Alg. 1, in one readable file.
+"""Gaussian Evolutionary Specialists (GES) in one readable file: Alg. 1 and Sec. IV ("Gaussian Evolutionary
+Specialists") of the paper "Rapid co-design of Buoyancy-assisted robots for Challenging Locomotion using Gaussian
+Evolutionary Specialists" (Sinha, Sontakke, Hong, Tanaka and Ha).
 
 GES keeps K specialists, each owning a diagonal Gaussian "territory" over the design space. Every round it
   1. trains each specialist on designs drawn from its territory (warm-started from its last checkpoint),
   2. probes F designs near the territories' 2-sigma borders; every specialist scores every probe and the best
      scorer wins it (eq. 6),
   3. refits each Gaussian to the designs it holds (eq. 7),
-and stops when the territories cover 95 % of the design space (eq. 8-9). Afterwards a density router (eq. 10)
+and stops when the territories cover 95 % of the design space (eqs. 8-9). Afterwards a density router (eq. 10)
 hands any design to one specialist, so an outer search (TPE) scores designs without training.
 
-Equation numbers count the numbered equations of paper/ges_paper.tex in order:
-  (5) space-filling objective of the initialisation, (6) probe argmax [eq:probe], (7) refit [eq:refit],
-  (8) unnormalised f_k, (9) MC coverage c-hat, (10) density router [eq:router_select].
-Provenance of every choice is marked in its docstring: [paper], [facts] (docs/facts.md, the authors' code read
-as facts) or [ours] (the paper and the facts are silent).
+Equation numbers count the paper's numbered equations in order:
+  (5) space-filling objective of the initialisation, (6) probe argmax, (7) refit, (8) unnormalised f_k,
+  (9) MC coverage c-hat, (10) density router. Alg. 1's lines: 1-5 initialisation, 6-19 the loop (Train 7-10,
+  Probe 11-15, Refit 16, CheckCoverage 17). Provenance of every choice is marked in its docstring: [paper],
+  [facts] (docs/facts.md, the authors' code read as facts) or [ours] (the paper and the facts are silent).
 
 This module knows nothing about BALLU or PPO. It takes two plain callables (picklable, so that the K
 specialists can run in a process pool):
@@ -29,15 +31,17 @@ specialists can run in a process pool):
     score_fn(k, ckpt, designs) -> (n,) array of scores, higher is better
         designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
 
-Read top to bottom: 1. the design box, 2. settings and randomness, 3. territories (f_k, coverage, router, refit),
-4. initialisation, 5. executors, 6. state, history and result, 7. the GES loop (Alg. 1), 7b. adaptive K (an
+Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, router, refit, probes),
+3. initialisation and the run's state, 4. the GES loop (Alg. 1), 5. the routed evaluator; then the machinery:
+6. the design box, 7. settings' checks, state files, history and result, 8. executors, 9. adaptive K (an
 option, ours: merge a specialist another serves as well, split a territory its specialist serves unevenly),
-8. the routed evaluator, 9. figures, 10. the synthetic landscape, 11. benchmark and command line.
+10. the synthetic landscape, 11. benchmark and command line.
 
-Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn),
-plot_territories(history, path). `python ges.py --bench` times coverage/routing, `python ges.py --demo OUT`
-runs a synthetic landscape and writes OUT/territories.png (`--K auto --sites B` on B planted sites: adaptive
-K), `python ges.py --sweep` prints rounds to coverage per (n_init, F) on it.
+Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn); the figure of
+a run's territories is report.figures.plot_territories(history, path). `python ges.py --bench` times
+coverage/routing, `python ges.py --demo OUT` runs a synthetic landscape and writes OUT/territories.png
+(`--K auto --sites B` on B planted sites: adaptive K), `python ges.py --sweep` prints rounds to coverage per
+(n_init, F) on it.
 """
 from __future__ import annotations
 
@@ -50,13 +54,398 @@ import sys
 import tempfile
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 # ---------------------------------------------------------------------------------------------------------
-# 1. The design space: a box of named bounds, worked in the normalised box [0, 1]^d [paper, Sec. IV-B]
+# 1. Settings and randomness
+# ---------------------------------------------------------------------------------------------------------
+INIT_METHODS = ("grid", "random", "fps", "fps+lloyd")
+ROUTERS = ("density", "oracle")
+
+
+@dataclass
+class GESConfig:
+    """GES settings. Every default is the paper's or the facts' value (source in the comment)."""
+    K: int = 3                        # specialists: 3 in D2, 6 in D3 [facts; paper Sec. V]
+    n_probe: int = 100                # F probes per round [facts; paper Alg. 1 names F]
+    probe_pool: int = 2000            # uniform points the probes are picked from [facts]
+    band_lo: float = -2.5             # probe band on max_k log f_k (eq. 8): -2.5 < . < -0.5, i.e. Mahalanobis
+    band_hi: float = -0.5             #   distance 1..2.24 around the 2-sigma border [facts]
+    n_init_designs: int = 50          # designs per specialist seeding eta_k [facts]
+    n_mc: int = 10_000                # N_mc MC coverage points [paper, Sec. V-A]
+    tau: float = math.exp(-2)         # coverage threshold on f_k, the 2-sigma contour [paper, eq. 8]
+    target_coverage: float = 0.95     # stop criterion [paper, Sec. IV-B]
+    init_coverage: float = 0.12       # sigma_0 calibrated to this MC coverage [paper, Sec. V-A]
+    max_rounds: int = 20              # hard stop [facts]
+    lloyd_iters: int = 12             # T Lloyd iterations [facts; paper Sec. IV-B names T]
+    fps_pool: int = 10_000            # uniform pool for FPS and Lloyd [facts]
+    var_floor: float = 1e-4           # per-axis variance floor (1 % of the range)^2 in unit coords [facts]
+    init: str = "fps+lloyd"           # centre initialisation [paper, Sec. IV-B and Table III]
+    router: str = "density"           # outer-loop router: 'density' [paper, eq. 10] or 'oracle' [facts, QUIRK]
+    # Adaptive K [ours; the paper's Sec. VI names it as open, its runs fix K]: K above is then the start, and
+    # between rounds a redundant specialist is merged, a territory its specialist serves unevenly is split
+    # (section 9 below; study: docs/ges_adaptive).
+    adaptive: bool = False            # False: the paper's fixed K
+    K_min: int = 1                    # bounds of the adaptive K
+    K_max: int = 8
+    n_check: int = 16                 # designs drawn from each territory, scored by every specialist, per round
+    merge_tol: float = 0.05           # merge j if another loses <= this share of the scale on j's checks, per design
+    split_gap: float = 0.25           # challenge k if its checks' two 2-means halves differ by this share
+    split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split,
+                                      #   doubled for each challenger of its own it took back (backoff)
+    challenge_rounds: int = 2         # rounds a specialist (the first K, a challenger) trains before a merge test
+
+    def __post_init__(self):
+        _check_config(self)   # section 7: one ValueError naming the setting and what is allowed
+
+
+# Every draw comes from a generator derived from (seed, stream, round, k), so results do not depend on the
+# order in which specialists run [ours].
+INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE, CHECK = range(6)  # stream ids
+
+
+def rng_for(seed: int, *keys: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, *keys]))
+
+
+def seed_for(seed: int, *keys: int) -> int:
+    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0])
+
+
+def mc_points(seed: int, n: int, d: int) -> np.ndarray:
+    """The N_mc uniform points of eq. 9. The same points every round (common random numbers), so the coverage
+    history is not jittered by MC noise [ours]."""
+    return rng_for(seed, COVERAGE).random((n, d))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 2. Gaussian territories in the unit cube [paper, Sec. IV-B: "normalized design space"]: f_k, coverage,
+#    density, router, refit, and the designs drawn from them
+# ---------------------------------------------------------------------------------------------------------
+def log_f(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """log f_k(x) = -sum_d (x_d - mu_kd)^2 / (2 sigma_kd^2), the unnormalised density of eq. 8. (n, K)."""
+    z = (x[:, None, :] - mu[None, :, :]) / sigma[None, :, :]
+    return -0.5 * np.einsum("nkd,nkd->nk", z, z)
+
+
+def coverage(mu: np.ndarray, sigma: np.ndarray, points: np.ndarray, tau: float = math.exp(-2)) -> float:
+    """MC coverage c-hat (eq. 9): fraction of points with max_k f_k > tau (eq. 8; tau = e^-2 is the 2-sigma
+    contour)."""
+    return float(np.mean(log_f(points, mu, sigma).max(axis=1) > math.log(tau)))
+
+
+def log_density(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """log N(x | mu_k, diag sigma_k^2), normalised (determinant included), in log space. (n, K)."""
+    d = mu.shape[1]
+    return log_f(x, mu, sigma) - np.log(sigma).sum(axis=1)[None, :] - 0.5 * d * math.log(2 * math.pi)
+
+
+def route(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Density router [paper, eq. 10]: k* = argmax_k N(x | mu_k, Sigma_k), ties to the lower index. The argmax
+    is the same in unit and physical coordinates (the Jacobian is common to all k)."""
+    return np.argmax(log_density(np.atleast_2d(x), mu, sigma), axis=1)
+
+
+def refit(eta: np.ndarray, var_floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+    """Refit [paper, eq. 7]: mu = mean(eta), Sigma = diagcov(eta), with the variance floored at var_floor
+    [facts] so a territory never collapses to a line. Population variance (ddof=0, numpy's default; ours)."""
+    return eta.mean(axis=0), np.sqrt(np.maximum(eta.var(axis=0), var_floor))
+
+
+def refit_all(eta: list, var_floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """eq. 7 for every k: (K, d) centres and standard deviations of the designs eta_k each specialist holds."""
+    fits = [refit(e, var_floor) for e in eta]
+    return np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
+
+
+def sample_clipped(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n draws from N(mu, diag sigma^2) clipped to the unit box [facts: 'clipped to the box']."""
+    return np.clip(mu + sigma * rng.standard_normal((n, len(mu))), 0.0, 1.0)
+
+
+def sample_probes(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n_probe: int = 100,
+                  pool_size: int = 2000, band: tuple = (-2.5, -0.5)) -> np.ndarray:
+    """Border probes [paper, Alg. 1 SampleBorder; facts]: pool_size uniform points, keep those whose
+    g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first). Outermost
+    first and the top-up below follow the authors' code (scripts/pec, not spelled out in the facts file):
+    it is what makes territories grow at a useful pace (random in-band picks grow them ~sqrt(rounds)).
+    If fewer than n_probe lie in the band, top up with the out-of-band points of lowest g, i.e. those
+    farthest from every territory. Returns (n_probe, d) unit points."""
+    pool = rng.random((pool_size, mu.shape[1]))
+    g = log_f(pool, mu, sigma).max(axis=1)
+    in_band = (g > band[0]) & (g < band[1])
+    order = np.lexsort((g, ~in_band))  # in-band first, then by g ascending
+    return pool[order[:n_probe]]
+
+
+@dataclass(eq=False)
+class GaussianSampler:
+    """A specialist's territory as handed to train_fn: sampler(rng, n) -> (n, d) PHYSICAL designs drawn from
+    N(mu, diag sigma^2) in unit coordinates, clipped to the box. Picklable. `seed` (derived from
+    (seed, round, k)) is for the trainer's own RNGs."""
+    mu: np.ndarray      # (d,) unit
+    sigma: np.ndarray   # (d,) unit
+    space: Box
+    seed: int = 0
+
+    def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        x = self.space.from_unit(sample_clipped(self.mu, self.sigma, rng, n))
+        return np.clip(x, self.space.lo, self.space.hi)  # no ulp past the bounds
+
+    @property
+    def mu_physical(self) -> np.ndarray:
+        return self.space.from_unit(self.mu)
+
+    @property
+    def sigma_physical(self) -> np.ndarray:
+        return self.sigma * (self.space.hi - self.space.lo)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 3. Initialisation [paper, Sec. IV-B, Table III; facts]: centres, sigma_0, initial designs; the run's state
+# ---------------------------------------------------------------------------------------------------------
+def farthest_point_sampling(pool: np.ndarray, K: int, rng: np.random.Generator) -> np.ndarray:
+    """FPS [paper]: start at a random pool point, then repeatedly add the pool point farthest from the
+    centres chosen so far. Greedy 2-approximation of the min-max objective eq. 5."""
+    chosen = [int(rng.integers(len(pool)))]
+    dist = np.linalg.norm(pool - pool[chosen[0]], axis=1)
+    for _ in range(K - 1):
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(pool - pool[chosen[-1]], axis=1))
+    return pool[chosen].copy()
+
+
+def lloyd(centers: np.ndarray, pool: np.ndarray, iters: int) -> np.ndarray:
+    """Lloyd relaxation [paper]: move each centre to the centroid of its Voronoi cell of the pool. FPS picks
+    the box's corners and edges; Lloyd pulls the centres in so they tile the box evenly. An empty cell keeps
+    its centre [ours]."""
+    c = centers.copy()
+    for _ in range(iters):
+        owner = np.argmin(((pool[:, None, :] - c[None]) ** 2).sum(-1), axis=1)
+        for k in range(len(c)):
+            if np.any(owner == k):
+                c[k] = pool[owner == k].mean(axis=0)
+    return c
+
+
+def grid_centers(K: int, d: int) -> np.ndarray:
+    """Grid baseline of Table III (details ours): cell centres of the smallest m^d grid with m^d >= K, first
+    K in lexicographic order. Unbalanced when K is not m^d, as the paper notes for odd K."""
+    m = 1
+    while m ** d < K:
+        m += 1
+    cells = np.stack(np.meshgrid(*[np.arange(m)] * d, indexing="ij"), axis=-1).reshape(-1, d)
+    return (cells[:K] + 0.5) / m
+
+
+def init_centers(method: str, K: int, d: int, rng: np.random.Generator, pool_size: int = 10_000,
+                 lloyd_iters: int = 12) -> np.ndarray:
+    """K centres in [0,1]^d by 'grid', 'random', 'fps' or 'fps+lloyd' (paper's default; pool of 10,000
+    uniform points and 12 Lloyd iterations per the facts)."""
+    if method not in INIT_METHODS:
+        raise ValueError(f"method={method!r} not allowed: one of {INIT_METHODS}")
+    if K < 1 or d < 1:
+        raise ValueError(f"K={K} and d={d} must both be >= 1")
+    if method == "grid":
+        return grid_centers(K, d)
+    if method == "random":
+        return rng.random((K, d))
+    pool = rng.random((pool_size, d))
+    c = farthest_point_sampling(pool, K, rng)
+    return lloyd(c, pool, lloyd_iters) if method == "fps+lloyd" else c
+
+
+def calibrate_sigma(mu: np.ndarray, points: np.ndarray, target: float = 0.12, tau: float = math.exp(-2),
+                    iters: int = 60) -> np.ndarray:
+    """sigma_0 [facts]: isotropic per unit axis, proportional to 1/K^(1/d) (range/K^(1/d) in physical units),
+    scaled by bisection until the MC coverage (eq. 9, on `points`) reaches `target` (12 %, paper Sec. V-A).
+    Coverage is monotone in the scale, so bisection returns the smallest scale reaching the target."""
+    K, d = mu.shape
+    base = np.full((K, d), K ** (-1.0 / d))
+    lo, hi = 0.0, 1.0
+    while coverage(mu, hi * base, points, tau) < target:
+        hi *= 2.0
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if coverage(mu, mid * base, points, tau) >= target else (mid, hi)
+    return hi * base
+
+
+@dataclass
+class GESState:
+    """Where a run stands after `round` completed rounds (0: the initialisation), in unit coordinates. Saved as
+    state.json after every round (section 7), so a run resumes where it stopped."""
+    round: int
+    mu: np.ndarray            # (K, d) territory centres
+    sigma: np.ndarray         # (K, d) territory standard deviations (diagonal Sigma_k)
+    eta: list                 # eta_k: the (n_k, d) designs specialist k holds (its seeds and the probes it won)
+    ckpt: list                # each specialist's last checkpoint, relative to run_dir (None before round 0)
+    done: bool                # covered (or at the round cap): the loop ends
+    history: list             # history.json's rounds (section 7)
+    ids: list                 # each specialist's id: its index with a fixed K (adaptive K retires some)
+    adapt: dict | None = None     # adaptive K's bookkeeping (section 9): wait, next_id, born, parent, strikes
+    task_seconds: list = field(default_factory=list)   # per round, each train and probe task's own seconds
+
+    @property
+    def K(self) -> int:
+        return len(self.mu)
+
+
+def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) -> GESState:
+    """Alg. 1 lines 1-5: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k.
+
+    The start depends on the space, the config and the seed only, never on the task [ours]: two tasks on one
+    space start from the same mu, sigma and eta_k, so their runs differ only by what the task teaches."""
+    mu = init_centers(config.init, config.K, space.d, rng_for(seed, INIT), config.fps_pool, config.lloyd_iters)
+    sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
+    eta = [sample_clipped(mu[k], sigma[k], rng_for(seed, INIT_DESIGNS, k), config.n_init_designs)
+           for k in range(config.K)]
+    ids = list(range(config.K))   # adaptive K: a specialist's id names it while others come and go (section 9)
+    born = {str(k): 0 for k in ids}   # adaptive K judges the first K like challengers born in round 0
+    adapt = dict(wait={}, next_id=config.K, born=born) if config.adaptive else None
+    state = GESState(0, mu, sigma, eta, [None] * config.K, False, [], ids, adapt)
+    state.history = [history_entry(space, state, coverage(mu, sigma, points, config.tau), np.zeros((0, space.d)),
+                                   np.zeros(0, int), ids, [] if config.adaptive else None)]
+    return state
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 4. The GES loop [paper, Alg. 1]
+# ---------------------------------------------------------------------------------------------------------
+def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state: GESState, points) -> GESState:
+    """One pass of Alg. 1's loop (lines 7-18): Train, Probe (eq. 6), Refit (eq. 7), CheckCoverage (eqs. 8-9;
+    the paper's text calls it line 18); then, with config.adaptive, section 9's merges and splits. Returns the
+    next state; `state` is not modified. A specialist is named by its id (its index with a fixed K): its seeds
+    and checkpoint files follow it when others are merged away."""
+    t, K, ids = state.round, state.K, state.ids
+    # Train (Alg. 1 lines 7-10): each specialist on designs from its own territory, warm-started [paper].
+    samplers = [GaussianSampler(state.mu[k], state.sigma[k], space, seed_for(seed, TRAIN, t, ids[k]))
+                for k in range(K)]
+    ckpt, train_s = train_all(executor, train_fn, run_dir, t, ids, samplers, state.ckpt)
+    # Probe (lines 11-15, eq. 6): F designs near the 2-sigma borders; every specialist scores every one and the
+    # best scorer wins it, ties to the lower index [facts]. Adaptive K's checks share the specialists' one call.
+    probes = sample_probes(state.mu, state.sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
+                           (config.band_lo, config.band_hi))
+    checks = draw_checks(space, config, seed, state)   # section 9; none with a fixed K
+    scores, probe_s = score_all(executor, score_fn, run_dir, ids, ckpt,
+                                space.from_unit(np.vstack([probes, checks.reshape(-1, space.d)])))
+    winner = np.argmax(scores[:, :len(probes)], axis=0)
+    eta = [np.vstack([state.eta[k], probes[winner == k]]) for k in range(K)]
+    # Refit (line 16, eq. 7): each territory to all the designs it holds. CheckCoverage (line 17, eqs. 8-9).
+    mu, sigma = refit_all(eta, config.var_floor)
+    cov = coverage(mu, sigma, points, config.tau)
+    new = replace(state, round=t + 1, mu=mu, sigma=sigma, eta=eta, ckpt=ckpt,
+                  done=bool(t + 1 >= config.max_rounds or cov >= config.target_coverage),
+                  task_seconds=state.task_seconds + [{"train": train_s, "probe": probe_s}])
+    events = None
+    if config.adaptive:   # merge a redundant specialist, split an unevenly served territory (section 9)
+        new, cov, events = adapt_k(new, checks, scores[:, len(probes):], config, points)
+    entry = history_entry(space, new, cov, probes, winner, ids, events)
+    return replace(new, history=state.history + [entry])
+
+
+def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
+            config: GESConfig | None = None, seed: int = 0, executor: Executor | None = None,
+            progress: Callable[[str], None] | None = print) -> GESResult:
+    """Run (or resume) GES until MC coverage >= target or max_rounds [paper, Alg. 1].
+
+    The state is saved atomically after every completed round; calling again on the same run_dir resumes at
+    the last completed round and ends with exactly the result of an uninterrupted run (all randomness derives
+    from (seed, round, k)). executor=None uses a ProcessPoolExecutor with os.cpu_count() workers; pass
+    SerialExecutor() to debug. train_fn, score_fn: see the module docstring."""
+    config, space = config or GESConfig(), Box.of(space)
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed={seed!r} not allowed: a non-negative integer")
+    say = progress or (lambda s: None)
+    os.makedirs(os.path.join(run_dir, CKPT_DIR), exist_ok=True)
+    points = mc_points(seed, config.n_mc, space.d)
+    state = _load_state(run_dir, space, config, seed)
+    if state is None:
+        state = initial_state(space, config, seed, points)
+        _save_state(run_dir, space, config, seed, state)
+        say(f"GES init: K={config.K} d={space.d} ({config.init}), coverage {state.history[0]['coverage']:.1%}")
+    elif not state.done:
+        say(f"GES resume: {run_dir} after round {state.round}")
+    own = executor is None and not state.done
+    executor = ProcessPoolExecutor(max_workers=os.cpu_count()) if own else executor
+    start = time.time()
+    try:
+        while not state.done:   # Alg. 1 line 6: until covered
+            state = ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points)
+            _save_state(run_dir, space, config, seed, state)
+            h = state.history[-1]
+            adapt = "".join(f"  {e['kind']} {e['id']}->{e.get('into', e.get('child'))}" for e in h.get("events", []))
+            say(f"round {h['round']:2d}/{config.max_rounds}  coverage {h['coverage']:6.1%}  wins {h['wins']}  "
+                + (f"K {len(h['mu'])}{adapt}  " if config.adaptive else "") + f"elapsed {time.time() - start:7.1f}s")
+    finally:
+        if own:
+            executor.shutdown()
+    return _result(run_dir, space, config, seed, state)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 5. What GES hands to the outer search: the result and its routed evaluator [paper, Sec. IV-C]
+# ---------------------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class GESResult:
+    """What GES hands to the outer search: territories (unit and physical), final checkpoints, history."""
+    space: Box
+    config: GESConfig
+    seed: int
+    run_dir: str
+    mu_unit: np.ndarray      # (K, d)
+    sigma_unit: np.ndarray   # (K, d)
+    mu: np.ndarray           # (K, d) physical
+    sigma: np.ndarray        # (K, d) physical
+    ckpt: list               # absolute paths of each specialist's last checkpoint
+    history: dict            # the content of history.json
+    rounds: int
+    coverage: float
+    task_seconds: float = 0.0   # every train and probe task's own seconds, summed: GES's compute (core-s)
+    ids: list = field(default_factory=list)   # each specialist's id (section 9; 0..K-1 with a fixed K)
+
+    def route(self, theta) -> np.ndarray:
+        """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
+        return route(self.space.to_unit(self.space.validate(theta)), self.mu_unit, self.sigma_unit)
+
+
+class RoutedEvaluator:
+    """J(theta) for TPE: 'density' scores theta with the specialist of highest Gaussian density (paper
+    eq. 10, default); 'oracle' scores it with every specialist and keeps the best (the authors' code, facts).
+    theta physical, (d,) -> float or (n, d) -> (n,)."""
+
+    def __init__(self, result: GESResult, score_fn: Callable, router: str | None = None):
+        router = router or result.config.router
+        if router not in ROUTERS:
+            raise ValueError(f"router={router!r} not allowed: one of {ROUTERS}")
+        if any(c is None for c in result.ckpt):
+            raise ValueError(f"result has no trained checkpoints yet (rounds={result.rounds}); run GES first")
+        self.result, self.score_fn, self.router = result, score_fn, router
+        self.ids = list(result.ids) or list(range(len(result.ckpt)))   # a GESResult built by hand may not name them
+
+    def __call__(self, theta):
+        x = self.result.space.validate(theta)
+        r = self.result
+        if self.router == "oracle":
+            out = np.max([np.asarray(self.score_fn(self.ids[k], r.ckpt[k], x), float) for k in range(len(r.ckpt))],
+                         axis=0)
+        else:
+            ks, out = r.route(x), np.empty(len(x))
+            for k in np.unique(ks):
+                out[ks == k] = np.asarray(self.score_fn(self.ids[k], r.ckpt[k], x[ks == k]), float)
+        return float(out[0]) if np.ndim(theta) == 1 else out
+
+
+def routed_evaluator(result: GESResult, score_fn: Callable, router: str | None = None) -> RoutedEvaluator:
+    """J(theta) callable of the routed specialist's score; router None -> result.config.router."""
+    return RoutedEvaluator(result, score_fn, router)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 6. The design space: a box of named bounds, worked in the normalised box [0, 1]^d [paper, Sec. IV-B]
 # ---------------------------------------------------------------------------------------------------------
 @dataclass
 class Box:
@@ -131,249 +520,146 @@ class Box:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 2. Settings
+# 7. Settings' checks; state files, history, result (all JSON; floats round-trip exactly through json's repr)
 # ---------------------------------------------------------------------------------------------------------
-INIT_METHODS = ("grid", "random", "fps", "fps+lloyd")
-ROUTERS = ("density", "oracle")
+def _check_config(c: GESConfig) -> None:
+    def need(name, ok, allowed):
+        if not ok:
+            raise ValueError(f"GESConfig.{name}={getattr(c, name)!r} not allowed: {allowed}")
+
+    def integer(name, least):
+        need(name, isinstance(getattr(c, name), (int, np.integer)) and getattr(c, name) >= least,
+             f"an integer >= {least}")
+    for name in ("K", "n_probe", "probe_pool", "n_init_designs", "n_mc", "max_rounds", "fps_pool"):
+        integer(name, 1)
+    integer("lloyd_iters", 0)
+    need("probe_pool", c.probe_pool >= c.n_probe, f"an integer >= n_probe={c.n_probe}")
+    need("fps_pool", c.fps_pool >= c.K, f"an integer >= K={c.K}")
+    need("band_hi", c.band_hi <= 0, "<= 0 (a log of f_k <= 1)")
+    need("band_lo", c.band_lo < c.band_hi, f"< band_hi={c.band_hi}")
+    need("tau", 0 < c.tau < 1, "in (0, 1)")
+    need("target_coverage", 0 < c.target_coverage <= 1, "in (0, 1]")
+    need("init_coverage", 0 < c.init_coverage < 1, "in (0, 1)")
+    need("var_floor", c.var_floor > 0, "> 0")
+    need("init", c.init in INIT_METHODS, f"one of {INIT_METHODS}")
+    need("router", c.router in ROUTERS, f"one of {ROUTERS}")
+    need("adaptive", isinstance(c.adaptive, (bool, np.bool_)), "True or False")
+    for name in ("K_min", "K_max", "n_check"):
+        integer(name, 1)
+    need("K_max", c.K_max >= c.K_min, f"an integer >= K_min={c.K_min}")
+    need("n_check", c.n_check >= 2, "an integer >= 2 (the split test halves a territory's checks)")
+    need("merge_tol", 0 <= c.merge_tol < 1, "in [0, 1)")
+    need("split_gap", 0 < c.split_gap < 1, "in (0, 1)")
+    for name in ("split_cooldown", "challenge_rounds"):
+        integer(name, 0)
+    if c.adaptive:
+        need("K", c.K_min <= c.K <= c.K_max, f"in [K_min, K_max] = [{c.K_min}, {c.K_max}] (adaptive K starts there)")
+        need("fps_pool", c.fps_pool >= c.K_max, f"an integer >= K_max={c.K_max}")
 
 
-@dataclass
-class GESConfig:
-    """GES settings. Every default is the paper's or the facts' value (source in the comment)."""
-    K: int = 3                        # specialists: 3 in D2, 6 in D3 [facts; paper Sec. V]
-    n_probe: int = 100                # F probes per round [facts; paper Alg. 1 names F]
-    probe_pool: int = 2000            # uniform points the probes are picked from [facts]
-    band_lo: float = -2.5             # probe band on max_k log f_k (eq. 8): -2.5 < . < -0.5, i.e. Mahalanobis
-    band_hi: float = -0.5             #   distance 1..2.24 around the 2-sigma border [facts]
-    n_init_designs: int = 50          # designs per specialist seeding eta_k [facts]
-    n_mc: int = 10_000                # N_mc MC coverage points [paper, Sec. V-A]
-    tau: float = math.exp(-2)         # coverage threshold on f_k, the 2-sigma contour [paper, eq. 8]
-    target_coverage: float = 0.95     # stop criterion [paper, Sec. IV-B]
-    init_coverage: float = 0.12       # sigma_0 calibrated to this MC coverage [paper, Sec. V-A]
-    max_rounds: int = 20              # hard stop [facts]
-    lloyd_iters: int = 12             # T Lloyd iterations [facts; paper Sec. IV-B names T]
-    fps_pool: int = 10_000            # uniform pool for FPS and Lloyd [facts]
-    var_floor: float = 1e-4           # per-axis variance floor (1 % of the range)^2 in unit coords [facts]
-    init: str = "fps+lloyd"           # centre initialisation [paper, Sec. IV-B and Table III]
-    router: str = "density"           # outer-loop router: 'density' [paper, eq. 10] or 'oracle' [facts, QUIRK]
-    # Adaptive K [ours; the paper's Sec. VI names it as open, its runs fix K]: K above is then the start, and
-    # between rounds a redundant specialist is merged, a territory its specialist serves unevenly is split
-    # (section 7b below; study: docs/ges_adaptive).
-    adaptive: bool = False            # False: the paper's fixed K
-    K_min: int = 1                    # bounds of the adaptive K
-    K_max: int = 8
-    n_check: int = 16                 # designs drawn from each territory, scored by every specialist, per round
-    merge_tol: float = 0.05           # merge j if another loses <= this share of the scale on j's checks, per design
-    split_gap: float = 0.25           # challenge k if its checks' two 2-means halves differ by this share
-    split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split,
-                                      #   doubled for each challenger of its own it took back (backoff)
-    challenge_rounds: int = 2         # rounds a specialist (the first K, a challenger) trains before a merge test
-
-    def __post_init__(self):
-        def need(name, ok, allowed):
-            if not ok:
-                raise ValueError(f"GESConfig.{name}={getattr(self, name)!r} not allowed: {allowed}")
-        for name in ("K", "n_probe", "probe_pool", "n_init_designs", "n_mc", "max_rounds", "fps_pool"):
-            need(name, isinstance(getattr(self, name), (int, np.integer)) and getattr(self, name) >= 1,
-                 "an integer >= 1")
-        need("lloyd_iters", isinstance(self.lloyd_iters, (int, np.integer)) and self.lloyd_iters >= 0,
-             "an integer >= 0")
-        need("probe_pool", self.probe_pool >= self.n_probe, f"an integer >= n_probe={self.n_probe}")
-        need("fps_pool", self.fps_pool >= self.K, f"an integer >= K={self.K}")
-        need("band_hi", self.band_hi <= 0, "<= 0 (a log of f_k <= 1)")
-        need("band_lo", self.band_lo < self.band_hi, f"< band_hi={self.band_hi}")
-        need("tau", 0 < self.tau < 1, "in (0, 1)")
-        need("target_coverage", 0 < self.target_coverage <= 1, "in (0, 1]")
-        need("init_coverage", 0 < self.init_coverage < 1, "in (0, 1)")
-        need("var_floor", self.var_floor > 0, "> 0")
-        need("init", self.init in INIT_METHODS, f"one of {INIT_METHODS}")
-        need("router", self.router in ROUTERS, f"one of {ROUTERS}")
-        need("adaptive", isinstance(self.adaptive, (bool, np.bool_)), "True or False")
-        for name in ("K_min", "K_max", "n_check"):
-            need(name, isinstance(getattr(self, name), (int, np.integer)) and getattr(self, name) >= 1,
-                 "an integer >= 1")
-        need("K_max", self.K_max >= self.K_min, f"an integer >= K_min={self.K_min}")
-        need("n_check", self.n_check >= 2, "an integer >= 2 (the split test halves a territory's checks)")
-        need("merge_tol", 0 <= self.merge_tol < 1, "in [0, 1)")
-        need("split_gap", 0 < self.split_gap < 1, "in (0, 1)")
-        for name in ("split_cooldown", "challenge_rounds"):
-            need(name, isinstance(getattr(self, name), (int, np.integer)) and getattr(self, name) >= 0,
-                 "an integer >= 0")
-        if self.adaptive:
-            need("K", self.K_min <= self.K <= self.K_max, f"in [K_min, K_max] = [{self.K_min}, {self.K_max}] "
-                 "(adaptive K starts there)")
-            need("fps_pool", self.fps_pool >= self.K_max, f"an integer >= K_max={self.K_max}")
+STATE_FILE, HISTORY_FILE, CKPT_DIR = "state.json", "history.json", "ckpt"
 
 
-# ---------------------------------------------------------------------------------------------------------
-# Randomness: every draw comes from a generator derived from (seed, stream, round, k), so results do not
-# depend on the order in which specialists run [ours].
-# ---------------------------------------------------------------------------------------------------------
-INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE, CHECK = range(6)  # stream ids
+def _atomic_json(path: str, obj) -> None:
+    """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state [ours]."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
 
 
-def rng_for(seed: int, *keys: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([seed, *keys]))
+def history_entry(space, state: GESState, cov: float, probes, winner, trained: list, events: list | None) -> dict:
+    """One history record. "round" counts completed rounds (0 = initialisation); entry r holds the territories
+    after refit r, the probes of training round r-1 with their winners (indices into `trained`, the ids that
+    trained), and that round's checkpoints; adaptive K adds the ids and the round's merges and splits."""
+    entry = {"round": state.round, "coverage": cov,
+             "mu_unit": state.mu.tolist(), "sigma_unit": state.sigma.tolist(),
+             "mu": space.from_unit(state.mu).tolist(), "sigma": (state.sigma * (space.hi - space.lo)).tolist(),
+             "wins": [int(w) for w in np.bincount(winner, minlength=len(trained))],
+             "n_designs": [len(e) for e in state.eta],
+             "probes_unit": np.asarray(probes).tolist(), "winner": [int(w) for w in winner],
+             "ckpt": list(state.ckpt)}
+    if events is not None:
+        entry.update(ids_trained=list(trained), ids=list(state.ids), events=events)
+    return entry
 
 
-def seed_for(seed: int, *keys: int) -> int:
-    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0])
+def _history_doc(space, config, seed, entries) -> dict:
+    return {"space": space.to_dict(), "config": asdict(config), "seed": seed, "rounds": entries}
 
 
-def mc_points(seed: int, n: int, d: int) -> np.ndarray:
-    """The N_mc uniform points of eq. 9. The same points every round (common random numbers), so the coverage
-    history is not jittered by MC noise [ours]."""
-    return rng_for(seed, COVERAGE).random((n, d))
+def _state_doc(state: GESState) -> dict:
+    """state.json's fields, in the order earlier versions wrote them (the initialisation's differs)."""
+    doc = {"round": state.round, "mu": state.mu.tolist(), "sigma": state.sigma.tolist(),
+           "eta": [e.tolist() for e in state.eta], "ckpt": list(state.ckpt), "done": state.done}
+    adapt = {} if state.adapt is None else {"ids": list(state.ids), **state.adapt}
+    if state.round == 0:
+        return {**doc, "history": state.history, **adapt}
+    return {**doc, **adapt, "history": state.history, "task_seconds": state.task_seconds}
 
 
-# ---------------------------------------------------------------------------------------------------------
-# 3. Gaussian territories in the unit cube: f_k, coverage, density, router
-# ---------------------------------------------------------------------------------------------------------
-def log_f(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """log f_k(x) = -sum_d (x_d - mu_kd)^2 / (2 sigma_kd^2), the unnormalised density of eq. 8. (n, K)."""
-    z = (x[:, None, :] - mu[None, :, :]) / sigma[None, :, :]
-    return -0.5 * np.einsum("nkd,nkd->nk", z, z)
+def _state_of(doc: dict) -> GESState:
+    mu = np.array(doc["mu"], dtype=float)
+    adapt = {k: doc[k] for k in ("wait", "next_id", "born", "parent", "strikes") if k in doc}
+    return GESState(doc["round"], mu, np.array(doc["sigma"], dtype=float),
+                    [np.array(e, dtype=float).reshape(-1, mu.shape[1]) for e in doc["eta"]], list(doc["ckpt"]),
+                    doc["done"], doc["history"], list(doc.get("ids", range(len(mu)))),
+                    adapt if "ids" in doc else None, doc.get("task_seconds", []))
 
 
-def coverage(mu: np.ndarray, sigma: np.ndarray, points: np.ndarray, tau: float = math.exp(-2)) -> float:
-    """MC coverage c-hat (eq. 9): fraction of points with max_k f_k > tau (eq. 8; tau = e^-2 is the 2-sigma
-    contour)."""
-    return float(np.mean(log_f(points, mu, sigma).max(axis=1) > math.log(tau)))
+def _read_state(run_dir: str) -> tuple[dict, GESState]:
+    """state.json of run_dir, checked: ValueError naming the file and what to do if it is truncated, garbage or
+    not a GES state, instead of a JSON / Unicode / KeyError traceback."""
+    path = os.path.join(run_dir, STATE_FILE)
+    try:
+        with open(path) as fh:
+            doc = json.load(fh)
+        Box.from_dict(doc["space"]), GESConfig(**doc["config"])
+        state = _state_of(doc)
+        state.history[-1]["coverage"], doc["seed"]
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as e:
+        raise ValueError(f"{path} is not a readable GES state ({type(e).__name__}); delete {run_dir} to start "
+                         f"that GES run over") from None
+    return doc, state
 
 
-def log_density(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """log N(x | mu_k, diag sigma_k^2), normalised (determinant included), in log space. (n, K)."""
-    d = mu.shape[1]
-    return log_f(x, mu, sigma) - np.log(sigma).sum(axis=1)[None, :] - 0.5 * d * math.log(2 * math.pi)
+def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> GESState | None:
+    if not os.path.exists(os.path.join(run_dir, STATE_FILE)):
+        return None
+    doc, state = _read_state(run_dir)
+    for what, saved, now in (("space", Box.from_dict(doc["space"]).to_dict(), space.to_dict()),
+                             ("config", asdict(GESConfig(**doc["config"])), asdict(config)),   # older: defaults
+                             ("seed", doc["seed"], seed)):
+        if saved != now:
+            raise ValueError(f"run_dir={run_dir!r} holds a run with a different {what} ({saved} vs {now}); "
+                             f"resume with the same settings or use a new run_dir")
+    return state
 
 
-def route(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Density router [paper, eq. 10]: k* = argmax_k N(x | mu_k, Sigma_k), ties to the lower index. The argmax
-    is the same in unit and physical coordinates (the Jacobian is common to all k)."""
-    return np.argmax(log_density(np.atleast_2d(x), mu, sigma), axis=1)
+def _save_state(run_dir, space, config, seed, state: GESState) -> None:
+    _atomic_json(os.path.join(run_dir, STATE_FILE), dict(_state_doc(state), space=space.to_dict(),
+                                                         config=asdict(config), seed=seed))
+    _atomic_json(os.path.join(run_dir, HISTORY_FILE), _history_doc(space, config, seed, state.history))
 
 
-def refit(eta: np.ndarray, var_floor: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
-    """Refit [paper, eq. 7]: mu = mean(eta), Sigma = diagcov(eta), with the variance floored at var_floor
-    [facts] so a territory never collapses to a line. Population variance (ddof=0, numpy's default; ours)."""
-    return eta.mean(axis=0), np.sqrt(np.maximum(eta.var(axis=0), var_floor))
+def _result(run_dir, space, config, seed, state: GESState) -> GESResult:
+    return GESResult(space, config, seed, run_dir, state.mu, state.sigma, space.from_unit(state.mu),
+                     state.sigma * (space.hi - space.lo),
+                     [os.path.join(run_dir, c) if c else None for c in state.ckpt],
+                     _history_doc(space, config, seed, state.history), state.round, state.history[-1]["coverage"],
+                     float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.task_seconds)), list(state.ids))
 
 
-# ---------------------------------------------------------------------------------------------------------
-# 4. Initialisation [paper, Sec. IV-B, Table III; facts]: centres, sigma_0, initial designs
-# ---------------------------------------------------------------------------------------------------------
-def farthest_point_sampling(pool: np.ndarray, K: int, rng: np.random.Generator) -> np.ndarray:
-    """FPS [paper]: start at a random pool point, then repeatedly add the pool point farthest from the
-    centres chosen so far. Greedy 2-approximation of the min-max objective eq. 5."""
-    chosen = [int(rng.integers(len(pool)))]
-    dist = np.linalg.norm(pool - pool[chosen[0]], axis=1)
-    for _ in range(K - 1):
-        chosen.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, np.linalg.norm(pool - pool[chosen[-1]], axis=1))
-    return pool[chosen].copy()
-
-
-def lloyd(centers: np.ndarray, pool: np.ndarray, iters: int) -> np.ndarray:
-    """Lloyd relaxation [paper]: move each centre to the centroid of its Voronoi cell of the pool. FPS picks
-    the box's corners and edges; Lloyd pulls the centres in so they tile the box evenly. An empty cell keeps
-    its centre [ours]."""
-    c = centers.copy()
-    for _ in range(iters):
-        owner = np.argmin(((pool[:, None, :] - c[None]) ** 2).sum(-1), axis=1)
-        for k in range(len(c)):
-            if np.any(owner == k):
-                c[k] = pool[owner == k].mean(axis=0)
-    return c
-
-
-def grid_centers(K: int, d: int) -> np.ndarray:
-    """Grid baseline of Table III (details ours): cell centres of the smallest m^d grid with m^d >= K, first
-    K in lexicographic order. Unbalanced when K is not m^d, as the paper notes for odd K."""
-    m = 1
-    while m ** d < K:
-        m += 1
-    cells = np.stack(np.meshgrid(*[np.arange(m)] * d, indexing="ij"), axis=-1).reshape(-1, d)
-    return (cells[:K] + 0.5) / m
-
-
-def init_centers(method: str, K: int, d: int, rng: np.random.Generator, pool_size: int = 10_000,
-                 lloyd_iters: int = 12) -> np.ndarray:
-    """K centres in [0,1]^d by 'grid', 'random', 'fps' or 'fps+lloyd' (paper's default; pool of 10,000
-    uniform points and 12 Lloyd iterations per the facts)."""
-    if method not in INIT_METHODS:
-        raise ValueError(f"method={method!r} not allowed: one of {INIT_METHODS}")
-    if K < 1 or d < 1:
-        raise ValueError(f"K={K} and d={d} must both be >= 1")
-    if method == "grid":
-        return grid_centers(K, d)
-    if method == "random":
-        return rng.random((K, d))
-    pool = rng.random((pool_size, d))
-    c = farthest_point_sampling(pool, K, rng)
-    return lloyd(c, pool, lloyd_iters) if method == "fps+lloyd" else c
-
-
-def calibrate_sigma(mu: np.ndarray, points: np.ndarray, target: float = 0.12, tau: float = math.exp(-2),
-                    iters: int = 60) -> np.ndarray:
-    """sigma_0 [facts]: isotropic per unit axis, proportional to 1/K^(1/d) (range/K^(1/d) in physical units),
-    scaled by bisection until the MC coverage (eq. 9, on `points`) reaches `target` (12 %, paper Sec. V-A).
-    Coverage is monotone in the scale, so bisection returns the smallest scale reaching the target."""
-    K, d = mu.shape
-    base = np.full((K, d), K ** (-1.0 / d))
-    lo, hi = 0.0, 1.0
-    while coverage(mu, hi * base, points, tau) < target:
-        hi *= 2.0
-    for _ in range(iters):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if coverage(mu, mid * base, points, tau) >= target else (mid, hi)
-    return hi * base
-
-
-def sample_clipped(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
-    """n draws from N(mu, diag sigma^2) clipped to the unit box [facts: 'clipped to the box']."""
-    return np.clip(mu + sigma * rng.standard_normal((n, len(mu))), 0.0, 1.0)
-
-
-def sample_probes(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n_probe: int = 100,
-                  pool_size: int = 2000, band: tuple = (-2.5, -0.5)) -> np.ndarray:
-    """Border probes [paper, Alg. 1 SampleBorder; facts]: pool_size uniform points, keep those whose
-    g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first). Outermost
-    first and the top-up below follow the authors' code (scripts/pec, not spelled out in the facts file):
-    it is what makes territories grow at a useful pace (random in-band picks grow them ~sqrt(rounds)).
-    If fewer than n_probe lie in the band, top up with the out-of-band points of lowest g, i.e. those
-    farthest from every territory. Returns (n_probe, d) unit points."""
-    pool = rng.random((pool_size, mu.shape[1]))
-    g = log_f(pool, mu, sigma).max(axis=1)
-    in_band = (g > band[0]) & (g < band[1])
-    order = np.lexsort((g, ~in_band))  # in-band first, then by g ascending
-    return pool[order[:n_probe]]
-
-
-@dataclass(eq=False)
-class GaussianSampler:
-    """A specialist's territory as handed to train_fn: sampler(rng, n) -> (n, d) PHYSICAL designs drawn from
-    N(mu, diag sigma^2) in unit coordinates, clipped to the box. Picklable. `seed` (derived from
-    (seed, round, k)) is for the trainer's own RNGs."""
-    mu: np.ndarray      # (d,) unit
-    sigma: np.ndarray   # (d,) unit
-    space: Box
-    seed: int = 0
-
-    def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        x = self.space.from_unit(sample_clipped(self.mu, self.sigma, rng, n))
-        return np.clip(x, self.space.lo, self.space.hi)  # no ulp past the bounds
-
-    @property
-    def mu_physical(self) -> np.ndarray:
-        return self.space.from_unit(self.mu)
-
-    @property
-    def sigma_physical(self) -> np.ndarray:
-        return self.sigma * (self.space.hi - self.space.lo)
+def load_result(run_dir: str) -> GESResult:
+    """Rebuild the GESResult of a (finished or interrupted) run from its state.json."""
+    doc, state = _read_state(run_dir)
+    return _result(run_dir, Box.from_dict(doc["space"]), GESConfig(**doc["config"]), doc["seed"], state)
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 5. Executors: the K specialists' train and probe tasks are independent [paper, Sec. V-D]
+# 8. Executors: the K specialists' train and probe tasks are independent [paper, Sec. V-D]
 # ---------------------------------------------------------------------------------------------------------
 class SerialExecutor(Executor):
     """Runs each task inline at submit(): for debugging and tests. Same results as any other Executor."""
@@ -405,208 +691,71 @@ def _map_all(executor: Executor, fn: Callable, arg_lists: list) -> tuple[list, l
     return [f.result()[0] for f in futures], [f.result()[1] for f in futures]
 
 
-# ---------------------------------------------------------------------------------------------------------
-# 6. State, history, result (all JSON; floats round-trip exactly through json's repr)
-# ---------------------------------------------------------------------------------------------------------
-STATE_FILE, HISTORY_FILE, CKPT_DIR = "state.json", "history.json", "ckpt"
+def train_all(executor, train_fn, run_dir, t, ids, samplers, ckpt_in) -> tuple[list, list]:
+    """Round t's training tasks: specialist ids[k] from its checkpoint ckpt_in[k] (None in round 0) on
+    samplers[k], writing ckpt/spec{id}_round{t}.ckpt. Returns those paths (relative to run_dir) and each task's
+    seconds."""
+    ckpt = [os.path.join(CKPT_DIR, f"spec{i}_round{t:02d}.ckpt") for i in ids]
+    _, seconds = _map_all(executor, train_fn, [(i, t, s, os.path.join(run_dir, c) if c else None,
+                                                os.path.join(run_dir, out))
+                                               for i, s, c, out in zip(ids, samplers, ckpt_in, ckpt)])
+    for i, out in zip(ids, ckpt):
+        if not os.path.exists(os.path.join(run_dir, out)):
+            raise RuntimeError(f"train_fn did not write ckpt_out for specialist {i} in round {t}")
+    return ckpt, seconds
 
 
-def _atomic_json(path: str, obj) -> None:
-    """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state [ours]."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
-def _history_entry(space, state: dict, cov: float, wins, probes, winner) -> dict:
-    """One history record. "round" counts completed rounds (0 = initialisation); entry r holds the territories
-    after refit r, the probes of training round r-1 with their winners, and that round's checkpoints."""
-    mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
-    return {"round": state["round"], "coverage": cov,
-            "mu_unit": mu.tolist(), "sigma_unit": sigma.tolist(),
-            "mu": space.from_unit(mu).tolist(), "sigma": (sigma * (space.hi - space.lo)).tolist(),
-            "wins": [int(w) for w in wins], "n_designs": [len(e) for e in state["eta"]],
-            "probes_unit": np.asarray(probes).tolist(), "winner": [int(w) for w in winner],
-            "ckpt": list(state["ckpt"])}
-
-
-def _history_doc(space, config, seed, entries) -> dict:
-    return {"space": space.to_dict(), "config": asdict(config), "seed": seed, "rounds": entries}
-
-
-def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) -> dict:
-    """Alg. 1 lines 1-4: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k.
-
-    The start depends on the space, the config and the seed only, never on the task [ours]: two tasks on one
-    space start from the same mu, sigma and eta_k, so their runs differ only by what the task teaches."""
-    mu = init_centers(config.init, config.K, space.d, rng_for(seed, INIT), config.fps_pool, config.lloyd_iters)
-    sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
-    eta = [sample_clipped(mu[k], sigma[k], rng_for(seed, INIT_DESIGNS, k), config.n_init_designs)
-           for k in range(config.K)]
-    state = {"round": 0, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in eta],
-             "ckpt": [None] * config.K, "done": False}
-    zeros = [0] * config.K
-    state["history"] = [_history_entry(space, state, coverage(mu, sigma, points, config.tau), zeros,
-                                       np.zeros((0, space.d)), [])]
-    if config.adaptive:   # a specialist's id names it while others come and go (section 7b)
-        state.update(ids=list(range(config.K)), wait={}, next_id=config.K,
-                     born={str(k): 0 for k in range(config.K)})   # the first K are judged like challengers
-        state["history"][0].update(ids_trained=list(range(config.K)), ids=list(range(config.K)), events=[])
-    return state
-
-
-def _read_state(run_dir: str) -> dict:
-    """state.json of run_dir, checked: ValueError naming the file and what to do if it is truncated, garbage or
-    not a GES state, instead of a JSON / Unicode / KeyError traceback."""
-    path = os.path.join(run_dir, STATE_FILE)
-    try:
-        with open(path) as fh:
-            state = json.load(fh)
-        Box.from_dict(state["space"]), GESConfig(**state["config"])
-        np.array(state["mu"], dtype=float), state["round"], state["history"][-1]["coverage"], state["seed"]
-    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as e:
-        raise ValueError(f"{path} is not a readable GES state ({type(e).__name__}); delete {run_dir} to start "
-                         f"that GES run over") from None
-    return state
-
-
-def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> dict | None:
-    if not os.path.exists(os.path.join(run_dir, STATE_FILE)):
-        return None
-    state = _read_state(run_dir)
-    for what, saved, now in (("space", Box.from_dict(state["space"]).to_dict(), space.to_dict()),
-                             ("config", asdict(GESConfig(**state["config"])), asdict(config)),   # older: defaults
-                             ("seed", state["seed"], seed)):
-        if saved != now:
-            raise ValueError(f"run_dir={run_dir!r} holds a run with a different {what} ({saved} vs {now}); "
-                             f"resume with the same settings or use a new run_dir")
-    return state
-
-
-def _save_state(run_dir, space, config, seed, state) -> None:
-    _atomic_json(os.path.join(run_dir, STATE_FILE), dict(state, space=space.to_dict(), config=asdict(config),
-                                                         seed=seed))
-    _atomic_json(os.path.join(run_dir, HISTORY_FILE), _history_doc(space, config, seed, state["history"]))
-
-
-@dataclass(eq=False)
-class GESResult:
-    """What GES hands to the outer search: territories (unit and physical), final checkpoints, history."""
-    space: Box
-    config: GESConfig
-    seed: int
-    run_dir: str
-    mu_unit: np.ndarray      # (K, d)
-    sigma_unit: np.ndarray   # (K, d)
-    mu: np.ndarray           # (K, d) physical
-    sigma: np.ndarray        # (K, d) physical
-    ckpt: list               # absolute paths of each specialist's last checkpoint
-    history: dict            # the content of history.json
-    rounds: int
-    coverage: float
-    task_seconds: float = 0.0   # every train and probe task's own seconds, summed: GES's compute (core-s)
-    ids: list = field(default_factory=list)   # each specialist's id (section 7b; 0..K-1 with a fixed K)
-
-    def route(self, theta) -> np.ndarray:
-        """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
-        return route(self.space.to_unit(self.space.validate(theta)), self.mu_unit, self.sigma_unit)
-
-
-def _result(run_dir, space, config, seed, state) -> GESResult:
-    mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
-    return GESResult(space, config, seed, run_dir, mu, sigma, space.from_unit(mu), sigma * (space.hi - space.lo),
-                     [os.path.join(run_dir, c) if c else None for c in state["ckpt"]],
-                     _history_doc(space, config, seed, state["history"]), state["round"],
-                     state["history"][-1]["coverage"],
-                     float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.get("task_seconds", []))),
-                     list(state.get("ids", range(len(mu)))))
-
-
-def load_result(run_dir: str) -> GESResult:
-    """Rebuild the GESResult of a (finished or interrupted) run from its state.json."""
-    state = _read_state(run_dir)
-    space = Box.from_dict(state["space"])
-    return _result(run_dir, space, GESConfig(**state["config"]), state["seed"], state)
-
-
-# ---------------------------------------------------------------------------------------------------------
-# 7. The GES loop [paper, Alg. 1]
-# ---------------------------------------------------------------------------------------------------------
-def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points) -> dict:
-    """One Train-Probe-Refit round (Alg. 1 lines 7-19), then, with config.adaptive, the merges and splits of
-    section 7b. Returns the new state; `state` is not modified. A specialist is named by its id (its index in
-    a fixed-K run): its seeds and checkpoint files follow it when others are merged away."""
-    t, K = state["round"], len(state["mu"])
-    ids = state.get("ids", list(range(K)))
-    mu, sigma = np.array(state["mu"]), np.array(state["sigma"])
-    ckpt_out = [os.path.join(CKPT_DIR, f"spec{i}_round{t:02d}.ckpt") for i in ids]
-    # Train (Alg. 1 lines 8-11): each specialist on its own territory, warm-started [paper].
-    samplers = [GaussianSampler(mu[k], sigma[k], space, seed_for(seed, TRAIN, t, ids[k])) for k in range(K)]
-    _, train_s = _map_all(executor, train_fn, [(ids[k], t, samplers[k], os.path.join(run_dir, state["ckpt"][k])
-                                                if state["ckpt"][k] else None, os.path.join(run_dir, ckpt_out[k]))
-                                               for k in range(K)])
-    for k in range(K):
-        if not os.path.exists(os.path.join(run_dir, ckpt_out[k])):
-            raise RuntimeError(f"train_fn did not write ckpt_out for specialist {ids[k]} in round {t}")
-    # Probe (Alg. 1 lines 12-16, eq. 6): every specialist scores every border candidate (and, adaptive, every
-    # territory's checks: one score call per specialist either way).
-    probes = sample_probes(mu, sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
-                           (config.band_lo, config.band_hi))
-    checks = (np.stack([sample_clipped(mu[k], sigma[k], rng_for(seed, CHECK, t, ids[k]), config.n_check)
-                        for k in range(K)]) if config.adaptive else np.zeros((K, 0, space.d)))
-    designs = space.from_unit(np.vstack([probes, checks.reshape(-1, space.d)]))
-    scores, probe_s = _map_all(executor, score_fn, [(ids[k], os.path.join(run_dir, ckpt_out[k]), designs)
-                                                    for k in range(K)])
+def score_all(executor, score_fn, run_dir, ids, ckpt, designs) -> tuple[np.ndarray, list]:
+    """(K, n) scores of every specialist on every design, one score_fn task per specialist, and each task's
+    seconds."""
+    scores, seconds = _map_all(executor, score_fn, [(i, os.path.join(run_dir, c), designs) for i, c in zip(ids, ckpt)])
     scores = np.stack([np.asarray(s, dtype=float).reshape(-1) for s in scores])
-    if scores.shape != (K, len(designs)) or np.isnan(scores).any():
+    if scores.shape != (len(ids), len(designs)) or np.isnan(scores).any():
         raise ValueError(f"score_fn must return {len(designs)} non-NaN scores per specialist, got shape "
                          f"{scores.shape} with {int(np.isnan(scores).sum())} NaN")
-    scores, check_scores = scores[:, :len(probes)], scores[:, len(probes):].reshape(K, K, checks.shape[1])
-    winner = np.argmax(scores, axis=0)  # ties -> lower index [facts]
-    # Refit (Alg. 1 line 17, eq. 7) each territory to all the designs it holds.
-    eta = [np.vstack([np.array(state["eta"][k]).reshape(-1, space.d), probes[winner == k]]) for k in range(K)]
-    wins = np.bincount(winner, minlength=K)
-    terr = {"ids": list(ids), "eta": eta, "ckpt": list(ckpt_out), "wait": dict(state.get("wait", {})),
-            "next_id": state.get("next_id", K), "events": [], "born": dict(state.get("born", {})),
-            "parent": dict(state.get("parent", {})), "strikes": dict(state.get("strikes", {}))}
-    capped = t + 1 >= config.max_rounds
-    if config.adaptive:   # at the cap, no more training: the young are judged too
-        terr = merge(terr, check_scores, config, t + 1, final=capped)
-    fits = [refit(e, config.var_floor) for e in terr["eta"]]
-    mu, sigma = np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
-    cov = coverage(mu, sigma, points, config.tau)  # Alg. 1 line 18, eq. 9
-    # adaptive: the target coverage ends a run only once every split is tested (no challenger is young)
-    done = bool(capped or (cov >= config.target_coverage and not (config.adaptive and young(terr, config, t + 1))))
-    if config.adaptive and not done:   # a challenger is born only when a round will train it
-        kept = [ids.index(i) for i in terr["ids"]]
-        terr = split(terr, checks[kept], check_scores[np.ix_(kept, kept)], config, t + 1, space.d)
-        fits = [refit(e, config.var_floor) for e in terr["eta"]]
-        mu, sigma = np.stack([f[0] for f in fits]), np.stack([f[1] for f in fits])
-        cov = coverage(mu, sigma, points, config.tau)
-    new = {"round": t + 1, "mu": mu.tolist(), "sigma": sigma.tolist(), "eta": [e.tolist() for e in terr["eta"]],
-           "ckpt": terr["ckpt"], "done": done}
-    if config.adaptive:
-        new.update(ids=terr["ids"], wait=terr["wait"], next_id=terr["next_id"], born=terr["born"],
-                   parent=terr["parent"], strikes=terr["strikes"])
-    entry = _history_entry(space, new, cov, wins, probes, winner)
-    if config.adaptive:
-        entry.update(ids_trained=list(ids), ids=terr["ids"], events=terr["events"])
-    new["history"] = state["history"] + [entry]
-    # what the round's tasks cost, kept beside (not in) the history, which depends on nothing but the seed
-    new["task_seconds"] = state.get("task_seconds", []) + [{"train": train_s, "probe": probe_s}]
-    return new
+    return scores, seconds
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 7b. Adaptive K [ours]: the paper's first open direction (Sec. VI), an option beside its fixed K
+# 9. Adaptive K [ours]: the paper's first open direction (Sec. VI), an option beside its fixed K
 # ---------------------------------------------------------------------------------------------------------
 # Each round every specialist also scores n_check designs drawn from every territory ("checks"): S[i, j] holds
 # specialist i's scores on territory j's checks. Scores are compared in units of the round's scale, the mean
 # over territories of the owner's mean score on its own checks, so the tolerances mean the same for a J in cm
 # and a planted quality in [0, 1] (scores >= 0 assumed, as both are).
+def draw_checks(space: Box, config: GESConfig, seed: int, state: GESState) -> np.ndarray:
+    """The round's checks, (K, n_check, d) unit designs drawn from each territory; (K, 0, d) with a fixed K."""
+    if not config.adaptive:
+        return np.zeros((state.K, 0, space.d))
+    return np.stack([sample_clipped(state.mu[k], state.sigma[k], rng_for(seed, CHECK, state.round, i), config.n_check)
+                     for k, i in enumerate(state.ids)])
+
+
+def adapt_k(new: GESState, checks: np.ndarray, check_scores: np.ndarray, config: GESConfig, points) -> tuple:
+    """After the round's refit: merge, refit; then, unless the run is done, split and refit again. `new` is the
+    fixed-K round's next state (its eta_k and checkpoints still the trained specialists'). Returns the adapted
+    state, its coverage and the round's merge and split events."""
+    ids, r, K, a = new.ids, new.round, new.K, new.adapt
+    S = check_scores.reshape(K, K, checks.shape[1])
+    terr = {"ids": list(ids), "eta": new.eta, "ckpt": list(new.ckpt), "wait": dict(a.get("wait", {})),
+            "next_id": a.get("next_id", K), "events": [], "born": dict(a.get("born", {})),
+            "parent": dict(a.get("parent", {})), "strikes": dict(a.get("strikes", {}))}
+    capped = r >= config.max_rounds
+    terr = merge(terr, S, config, r, final=capped)   # at the cap, no more training: the young are judged too
+    mu, sigma = refit_all(terr["eta"], config.var_floor)
+    cov = coverage(mu, sigma, points, config.tau)
+    # the target coverage ends a run only once every split is tested (no challenger is young)
+    done = bool(capped or (cov >= config.target_coverage and not young(terr, config, r)))
+    if not done:   # a challenger is born only when a round will train it
+        kept = [ids.index(i) for i in terr["ids"]]
+        terr = split(terr, checks[kept], S[np.ix_(kept, kept)], config, r, checks.shape[2])
+        mu, sigma = refit_all(terr["eta"], config.var_floor)
+        cov = coverage(mu, sigma, points, config.tau)
+    adapt = {k: terr[k] for k in ("wait", "next_id", "born", "parent", "strikes")}
+    return (replace(new, mu=mu, sigma=sigma, eta=terr["eta"], ckpt=terr["ckpt"], done=done, ids=terr["ids"],
+                    adapt=adapt), cov, terr["events"])
+
+
 def score_scale(S: np.ndarray) -> float:
     own = np.abs(np.array([S[j, j].mean() for j in range(len(S))]))
     return max(float(own.mean()), 1e-12)
@@ -714,185 +863,6 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
     return out
 
 
-def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
-            config: GESConfig | None = None, seed: int = 0, executor: Executor | None = None,
-            progress: Callable[[str], None] | None = print) -> GESResult:
-    """Run (or resume) GES until MC coverage >= target or max_rounds [paper, Alg. 1].
-
-    The state is saved atomically after every completed round; calling again on the same run_dir resumes at
-    the last completed round and ends with exactly the result of an uninterrupted run (all randomness derives
-    from (seed, round, k)). executor=None uses a ProcessPoolExecutor with os.cpu_count() workers; pass
-    SerialExecutor() to debug. train_fn, score_fn: see the module docstring."""
-    config, space = config or GESConfig(), Box.of(space)
-    if not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed={seed!r} not allowed: a non-negative integer")
-    say = progress or (lambda s: None)
-    os.makedirs(os.path.join(run_dir, CKPT_DIR), exist_ok=True)
-    points = mc_points(seed, config.n_mc, space.d)
-    state = _load_state(run_dir, space, config, seed)
-    if state is None:
-        state = initial_state(space, config, seed, points)
-        _save_state(run_dir, space, config, seed, state)
-        say(f"GES init: K={config.K} d={space.d} ({config.init}), coverage {state['history'][0]['coverage']:.1%}")
-    elif not state["done"]:
-        say(f"GES resume: {run_dir} after round {state['round']}")
-    own = executor is None and not state["done"]
-    executor = ProcessPoolExecutor(max_workers=os.cpu_count()) if own else executor
-    start = time.time()
-    try:
-        while not state["done"]:
-            state = ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state, points)
-            _save_state(run_dir, space, config, seed, state)
-            h = state["history"][-1]
-            adapt = "".join(f"  {e['kind']} {e['id']}->{e.get('into', e.get('child'))}" for e in h.get("events", []))
-            say(f"round {h['round']:2d}/{config.max_rounds}  coverage {h['coverage']:6.1%}  wins {h['wins']}  "
-                + (f"K {len(h['mu'])}{adapt}  " if config.adaptive else "") + f"elapsed {time.time() - start:7.1f}s")
-    finally:
-        if own:
-            executor.shutdown()
-    return _result(run_dir, space, config, seed, state)
-
-
-# ---------------------------------------------------------------------------------------------------------
-# 8. Routed evaluator for the outer search [paper, Sec. IV-C]
-# ---------------------------------------------------------------------------------------------------------
-class RoutedEvaluator:
-    """J(theta) for TPE: 'density' scores theta with the specialist of highest Gaussian density (paper
-    eq. 10, default); 'oracle' scores it with every specialist and keeps the best (the authors' code, facts).
-    theta physical, (d,) -> float or (n, d) -> (n,)."""
-
-    def __init__(self, result: GESResult, score_fn: Callable, router: str | None = None):
-        router = router or result.config.router
-        if router not in ROUTERS:
-            raise ValueError(f"router={router!r} not allowed: one of {ROUTERS}")
-        if any(c is None for c in result.ckpt):
-            raise ValueError(f"result has no trained checkpoints yet (rounds={result.rounds}); run GES first")
-        self.result, self.score_fn, self.router = result, score_fn, router
-        self.ids = list(result.ids) or list(range(len(result.ckpt)))   # a GESResult built by hand may not name them
-
-    def __call__(self, theta):
-        x = self.result.space.validate(theta)
-        r = self.result
-        if self.router == "oracle":
-            out = np.max([np.asarray(self.score_fn(self.ids[k], r.ckpt[k], x), float) for k in range(len(r.ckpt))],
-                         axis=0)
-        else:
-            ks, out = r.route(x), np.empty(len(x))
-            for k in np.unique(ks):
-                out[ks == k] = np.asarray(self.score_fn(self.ids[k], r.ckpt[k], x[ks == k]), float)
-        return float(out[0]) if np.ndim(theta) == 1 else out
-
-
-def routed_evaluator(result: GESResult, score_fn: Callable, router: str | None = None) -> RoutedEvaluator:
-    """J(theta) callable of the routed specialist's score; router None -> result.config.router."""
-    return RoutedEvaluator(result, score_fn, router)
-
-
-# ---------------------------------------------------------------------------------------------------------
-# 9. Figures
-# ---------------------------------------------------------------------------------------------------------
-COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]
-
-
-def _snapshots(n_rounds: int, n: int = 4) -> list:
-    return sorted(set(int(round(i)) for i in np.linspace(0, n_rounds - 1, min(n, n_rounds))))
-
-
-def plot_territories(history: dict, path: str, background: Callable | None = None) -> str:
-    """Territory evolution: 2-sigma ellipses (the coverage contour of eq. 8) at a few rounds, with the probes
-    of that round coloured by winner and each centre's trail; pairwise projections when d = 3; plus coverage
-    and wins per round. `history` is the dict of history.json (or GESResult.history). `background(x_unit)`
-    -> int labels may shade planted regions (2-D only). Uses matplotlib's Agg canvas, no pyplot state."""
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Ellipse
-
-    space, rounds = Box.from_dict(history["space"]), history["rounds"]
-    lo, hi, d = space.lo, space.hi, space.d
-    pairs = [(0, 1)] if d == 2 else [(i, j) for i in range(d) for j in range(i + 1, d)]
-    snaps = _snapshots(len(rounds))
-    ids_of = lambda h: h.get("ids", list(range(len(h["mu"]))))          # noqa: E731  (section 7b)
-    trained_of = lambda h: h.get("ids_trained", ids_of(h))              # noqa: E731  the winners' index space
-    fig = Figure(figsize=(3.3 * (len(snaps) + 1), 3.1 * len(pairs) + 0.4), layout="constrained")
-    axes = fig.subplots(len(pairs), len(snaps) + 1, squeeze=False)
-    K0, K1 = len(rounds[0]["mu"]), len(rounds[-1]["mu"])
-    for r_i, (i, j) in enumerate(pairs):
-        for c_i, s in enumerate(snaps):
-            ax, h = axes[r_i, c_i], rounds[s]
-            if background is not None and d == 2:  # planted regions: light fill + dashed borders
-                g = np.linspace(0, 1, 300)
-                gx, gy = np.meshgrid(g, g)
-                lab = background(np.stack([gx.ravel(), gy.ravel()], 1)).reshape(gx.shape)
-                px, py = lo[0] + gx * (hi[0] - lo[0]), lo[1] + gy * (hi[1] - lo[1])
-                levels = np.arange(lab.max() + 2) - 0.5
-                ax.contourf(px, py, lab, levels=levels, cmap="Greys", vmin=-1, vmax=3 * lab.max() + 3)
-                ax.contour(px, py, lab, levels=levels[1:-1], colors="k", linewidths=0.8, linestyles="--")
-            probes = space.from_unit(np.array(h["probes_unit"]).reshape(-1, d))
-            for k, sid in enumerate(ids_of(h)):   # colour by id: a specialist keeps its colour through merges
-                col = COLORS[sid % len(COLORS)]
-                mu, sg = np.array(h["mu"][k]), np.array(h["sigma"][k])
-                ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc=col, ec=col, alpha=0.18, lw=0))
-                ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc="none", ec=col, lw=1.6))
-                trail = np.array([rounds[t]["mu"][ids_of(rounds[t]).index(sid)] for t in range(s + 1)
-                                  if sid in ids_of(rounds[t])])
-                ax.plot(trail[:, i], trail[:, j], "-", color=col, lw=0.8, alpha=0.7)
-                ax.plot(mu[i], mu[j], "o", color=col, mec="k", ms=6)
-            for k, sid in enumerate(trained_of(h)):
-                won = np.array(h["winner"]) == k
-                if won.any():   # black-edged, above the ellipses: a probe is one point, it must stand out
-                    ax.plot(probes[won, i], probes[won, j], "D", color=COLORS[sid % len(COLORS)], ms=4.5, mec="k",
-                            mew=0.6, zorder=4)
-            ax.set_xlim(lo[i], hi[i])
-            ax.set_ylim(lo[j], hi[j])
-            ax.set_xlabel(space.names[i])
-            ax.set_ylabel(space.names[j])
-            if r_i == 0:
-                ax.set_title(f"round {h['round']}: coverage {h['coverage']:.0%}", fontsize=10)
-        axes[r_i, -1].axis("off")
-    ax = axes[0, -1]
-    ax.axis("on")
-    t = [h["round"] for h in rounds]
-    ax.plot(t, [100 * h["coverage"] for h in rounds], "k.-", label="MC coverage", zorder=3)   # above the bars
-    ax.axhline(100 * history["config"]["target_coverage"], color="gray", ls="--", lw=1, label="target")
-    every = sorted({sid for h in rounds for sid in trained_of(h)} | set(ids_of(rounds[0])))
-    wins = np.array([[dict(zip(trained_of(h), h["wins"])).get(sid, 0) for sid in every] for h in rounds])
-    bottom = np.zeros(len(t))
-    for c, sid in enumerate(every):
-        share = 100 * wins[:, c] / np.maximum(wins.sum(1), 1)
-        ax.bar(t, share, bottom=bottom, color=COLORS[sid % len(COLORS)], alpha=0.35, width=0.8,
-               label=f"specialist {sid} wins")
-        bottom += share
-    if any("events" in h for h in rounds):   # adaptive K: K per round, splits and merges marked
-        ax2 = ax.twinx()
-        ks = [len(h["mu"]) for h in rounds]
-        ax2.plot(t, ks, "-", color="purple", lw=1.2, label="K (right axis)")
-        for kind, mark in (("split", "^"), ("merge", "v")):
-            at = [(h["round"], len(h["mu"])) for h in rounds for e in h.get("events", []) if e["kind"] == kind]
-            if at:
-                ax2.plot(*zip(*at), mark, color="purple", ms=7, ls="none", label=f"{kind} (right axis)")
-        ax2.set_ylim(0, max(ks) + 1)
-        ax2.set_ylabel("K")
-        h2, l2 = ax2.get_legend_handles_labels()
-    else:
-        h2, l2 = [], []
-    ax.set_ylim(0, 105)
-    ax.set_xticks(t)
-    ax.set_xlabel("round")
-    ax.set_ylabel("coverage %  /  share of probes won")
-    ax.set_title("coverage and wins per round", fontsize=10)
-    handles, labels = ax.get_legend_handles_labels()
-    handles, labels = handles + h2, labels + l2
-    if len(pairs) > 1:  # 3-D: the legend gets its own (otherwise empty) cell
-        axes[1, -1].legend(handles, labels, loc="center", fontsize=9)
-    else:   # 2-D: below the panel, where it covers neither the coverage line nor the bars
-        ax.legend(handles, labels, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
-    fig.suptitle(f"GES territories (2-sigma ellipses, diamonds: probes won this round), "
-                 + (f"K={K0}" if K0 == K1 and "events" not in rounds[-1] else f"adaptive K: {K0} -> {K1}")
-                 + f", d={d}"
-                 + ("; grey/dashed: planted regions" if background is not None and d == 2 else ""))
-    fig.savefig(path, dpi=110)
-    return path
-
-
 # ---------------------------------------------------------------------------------------------------------
 # 10. Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, --demo)
 # ---------------------------------------------------------------------------------------------------------
@@ -972,10 +942,25 @@ def planted(B: int, dim: int, seed: int) -> PlantedLandscape:
     return PlantedLandscape(space, planted_sites(B, dim, seed), width=0.2, cap=2.0)
 
 
+def demo_landscape(dim: int) -> tuple[PlantedLandscape, int]:
+    """The demo's landscape and K: three planted sites in 2-D with K = 3, six in 3-D with K = 6."""
+    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
+    K = 3 if dim == 2 else 6
+    return PlantedLandscape(space, DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3))), K
+
+
 def routed_mean(res: GESResult, land: PlantedLandscape, n: int = 2000, seed: int = 0) -> float:
     """Mean score of n uniform test designs, each scored by the specialist the density router picks (eq. 10)."""
     designs = res.space.sample_uniform(rng_for(seed, SITES, 1), n)
     return float(np.mean(routed_evaluator(res, land.score, "density")(designs)))
+
+
+def draw_territories(res: GESResult, out_dir: str, land: PlantedLandscape) -> str:
+    """out_dir/territories.png, the planted regions shaded in 2-D. The figure lives in report.figures with the
+    others; imported here, when drawn, since report imports ges (ges imports no report at load)."""
+    from report.figures import plot_territories
+    return plot_territories(res.history, os.path.join(out_dir, "territories.png"),
+                            background=land.region if res.space.d == 2 else None)
 
 
 def demo_adaptive(out_dir: str, K: str | int = "auto", B: int = 3, dim: int = 2, seed: int = 0,
@@ -991,23 +976,17 @@ def demo_adaptive(out_dir: str, K: str | int = "auto", B: int = 3, dim: int = 2,
     ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
     with ex:
         res = run_ges(land.space, land.train, land.score, out_dir, cfg, seed, ex, progress=None)
-    plot_territories(res.history, os.path.join(out_dir, "territories.png"),
-                     background=land.region if dim == 2 else None)
+    draw_territories(res, out_dir, land)
     return res, routed_mean(res, land, seed=seed)
 
 
 def demo(out_dir: str, dim: int = 2, seed: int = 0, workers: int = 1) -> GESResult:
     """Run GES on the planted landscape (a 2-D box with K=3, or 3-D with K=6); write out_dir/territories.png."""
-    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
-    K = 3 if dim == 2 else 6
-    sites = DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3))
-    land = PlantedLandscape(space, sites)
+    land, K = demo_landscape(dim)
     ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
     with ex:
-        res = run_ges(space, land.train, land.score, out_dir, GESConfig(K=K), seed, ex)
-    png = plot_territories(res.history, os.path.join(out_dir, "territories.png"),
-                           background=land.region if dim == 2 else None)
-    print(f"wrote {png}")
+        res = run_ges(land.space, land.train, land.score, out_dir, GESConfig(K=K), seed, ex)
+    print(f"wrote {draw_territories(res, out_dir, land)}")
     return res
 
 
@@ -1016,14 +995,12 @@ def rounds_to_coverage(dim: int, n_init: int, n_probe: int, seeds=(0, 1, 2), max
     seed, as (rounds, final coverage). Why: coverage grows by refitting each territory to its designs, n_init
     seeds plus the probes it wins, so its growth per round is set by F / n_init, not by F alone; this measures
     what a preset's probe budget buys (`python ges.py --sweep`)."""
-    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
-    K = 3 if dim == 2 else 6
-    land = PlantedLandscape(space, DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3)))
+    land, K = demo_landscape(dim)
     out = []
     for seed in seeds:
         cfg = GESConfig(K=K, n_init_designs=n_init, n_probe=n_probe, max_rounds=max_rounds)
         with tempfile.TemporaryDirectory() as d:
-            res = run_ges(space, land.train, land.score, d, cfg, seed, SerialExecutor(), progress=None)
+            res = run_ges(land.space, land.train, land.score, d, cfg, seed, SerialExecutor(), progress=None)
         out.append((res.rounds, res.coverage))
     return out
 
@@ -1039,7 +1016,7 @@ def sweep(pairs=((50, 100), (50, 16), (50, 4), (16, 32), (8, 16), (8, 8))):
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 11. Benchmark
+# 11. Benchmark and command line
 # ---------------------------------------------------------------------------------------------------------
 def _best_time(fn, repeats: int = 7, loops: int = 5) -> float:
     best = float("inf")
@@ -1075,7 +1052,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
     ap.add_argument("--seed", type=int, default=0, help="demo: an integer >= 0")
     ap.add_argument("--workers", type=int, default=1, help="demo: processes, >= 1 (>1 uses a ProcessPoolExecutor)")
-    ap.add_argument("--K", help="demo on a landscape of --sites sites: 'auto' (adaptive K, section 7b, starting at "
+    ap.add_argument("--K", help="demo on a landscape of --sites sites: 'auto' (adaptive K, section 9, starting at "
                     "K_max = 8) or a fixed K >= 1")
     ap.add_argument("--sites", type=int, help="demo: planted sites B >= 1 drawn from --seed (default 3 with --K)")
     args = ap.parse_args(argv)

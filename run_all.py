@@ -62,7 +62,8 @@ import ges
 import ppo
 import tpe
 from report.paper import METHOD_NAMES, PAPER_TABLE2
-from report.figures import _plt, fig_curves, fig_ksens, gait_features, level_of, toe_heights
+from report.figures import (COLORS, _plt, fig_curves, fig_ksens, gait_features, level_of, plot_territories,
+                            toe_heights)
 from report.strip import motion_strip
 from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_figures, report_ges_runs, report_header,
                            report_ksens, report_table1, report_table2, report_table3, report_territories,
@@ -319,7 +320,7 @@ class Preset:
     # [facts] round 0's steps per specialist (None: ges_round_steps): the authors' first GES round trains 1,600
     # updates, each later one 500 (~3.2x); a run that reaches its coverage after one round keeps round 0's steps
     ges_first_round_steps: int | None = None
-    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 7b), K <= K_d3, starting there (merging takes a
+    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 9), K <= K_d3, starting there (merging takes a
     # round, splitting three: docs/ges_adaptive): REPORT.md's
     # K-sensitivity table gains an "auto" row; each round scores ges_n_check() designs of every territory
     ksens_auto: bool = False
@@ -1010,7 +1011,7 @@ def fig_toes(run: Run, t2: dict, path: str) -> str:
         z = toe_heights(expert, full, steps=run.preset.episode_steps)
         tt = np.arange(len(z)) * dt
         for side in range(2):
-            axes[side].plot(tt, 100 * z[:, side], color=ges.COLORS[k % len(ges.COLORS)], label=f"specialist {k}")
+            axes[side].plot(tt, 100 * z[:, side], color=COLORS[k % len(COLORS)], label=f"specialist {k}")
     for side, name in enumerate(("left", "right")):
         axes[side].axhline(30.1, color="gray", ls="--", lw=1)
         axes[side].set_ylabel(f"{name} toe z [cm]")
@@ -1072,8 +1073,8 @@ def stage_figures(run: Run) -> dict:
     for t in TASKS:
         for s in SPACES:
             name = run.main_ges(t, s)
-            figs[f"fig6-{t}-{s}"] = ges.plot_territories(load_ges(run.path("ges", name)).history,
-                                                          os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
+            figs[f"fig6-{t}-{s}"] = plot_territories(load_ges(run.path("ges", name)).history,
+                                                      os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
     figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
     figs["fig8"] = fig_sensitivity(run, t2, os.path.join(fdir, "fig8_design_sensitivity.png"))
     for t in TASKS:   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level

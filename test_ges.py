@@ -1747,7 +1747,7 @@ def test_ges_result_and_history_files(synthetic_run, tmp_path):
     loaded = ges.load_result(res.run_dir)
     np.testing.assert_array_equal(loaded.sigma_unit, res.sigma_unit)
     assert loaded.history == res.history
-    png = ges.plot_territories(res.history, str(tmp_path / "t.png"), background=_land().region)
+    png = figures.plot_territories(res.history, str(tmp_path / "t.png"), background=_land().region)
     assert os.path.getsize(png) > 20_000
     again = _run(res.run_dir)  # a finished run dir returns its result without training again
     assert again.rounds == res.rounds and again.history == res.history
@@ -1931,7 +1931,7 @@ def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tm
 
 
 # =========================================================================================================
-# ges: adaptive K (section 7b) on planted landscapes
+# ges: adaptive K (ges.py section 9) on planted landscapes
 # =========================================================================================================
 def _adaptive(run_dir, B, K, seed=0, dim=2, train=None, **kw):
     land = ges.planted(B, dim, seed)
@@ -1989,7 +1989,7 @@ def test_ges_adaptive_keeps_its_bounds_and_resumes_exactly(tmp_path):
     k = resumed.route(x)
     np.testing.assert_allclose(J(x), [land.score(resumed.ids[i], resumed.ckpt[i], x[j:j + 1])[0]
                                       for j, i in enumerate(k)])
-    png = ges.plot_territories(resumed.history, str(tmp_path / "t.png"), background=land.region)
+    png = figures.plot_territories(resumed.history, str(tmp_path / "t.png"), background=land.region)
     assert os.path.getsize(png) > 20_000
 
 

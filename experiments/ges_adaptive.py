@@ -1,4 +1,4 @@
-"""Study: GES with adaptive K (ges.py section 7b) against fixed K on planted landscapes (docs/ges_adaptive).
+"""Study: GES with adaptive K (ges.py section 9) against fixed K on planted landscapes (docs/ges_adaptive).
 
 For B planted sites (ges.planted: B behaviours, each best in its own region) and 10 seeds per setting, in 2-D and
 3-D, run GES with K = auto (starting at K_max = 8) and with fixed K in {1, 3, 6} and K = B; per run record the final K,
@@ -24,6 +24,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import ges  # noqa: E402
+from report.figures import COLORS  # noqa: E402
 
 BS, DIMS, FIXED = (1, 2, 3, 5, 8), (2, 3), (1, 3, 6)
 
@@ -146,7 +147,7 @@ def figure(runs: list, path: str) -> str:
             n = max(map(len, ks))
             pad = np.array([k + [k[-1]] * (n - len(k)) for k in ks], dtype=float)   # a finished run keeps its K
             t = np.arange(n)
-            col = ges.COLORS[c % len(ges.COLORS)]
+            col = COLORS[c % len(COLORS)]
             ax.plot(t, np.median(pad, 0), "-", color=col, lw=1.8, label=f"B = {B}")
             ax.fill_between(t, pad.min(0), pad.max(0), color=col, alpha=0.15)
             ax.axhline(B, color=col, ls=":", lw=0.8)

@@ -1,16 +1,21 @@
-"""The figures' plotting and measuring helpers that need no run: Fig. 7, learning curves, toe-height traces
-and the gait features Fig. 5's claim is measured by. run_all.py's figure stage feeds them a run's numbers."""
+"""The figures' plotting and measuring helpers that need no run: GES's territories (Fig. 6), Fig. 7, learning
+curves, toe-height traces and the gait features Fig. 5's claim is measured by. run_all.py's figure stage feeds
+them a run's numbers. ballu is imported by the two helpers that run the robot, so the territory figure (which
+ges.py's demo draws too) needs none."""
 from __future__ import annotations
 
 import os
 from dataclasses import replace
+from typing import Callable
 
 import numpy as np
 
-import ballu
+from ges import Box
 from report.paper import PAPER_KSENS_PEAK_K
 from runkit.files import redo_if_damaged
 from runkit.logs import read_log
+
+COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"]   # specialist k
 
 
 def _plt():
@@ -24,6 +29,7 @@ def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30, st
     """Left/right toe z (steps, 2) over one episode of `steps` control steps (None: the env's; a run passes its
     preset's): a 1-lane BalluEnv, toe tips from the env's own state. The time limit is one step longer than the
     episode, so the last sample is not taken after an automatic reset."""
+    import ballu
     cfg = ballu.policy_config(policy, task)   # the observation it trained with
     steps = steps or cfg.episode_steps
     env = ballu.BalluEnv(1, replace(cfg, episode_steps=steps + 1), curriculum=False)
@@ -57,7 +63,7 @@ def fig_ksens(ks: dict, path: str) -> str:
     m, sd = [ks[str(k)]["mean"] for k in K], [ks[str(k)]["std"] for k in K]
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.errorbar(K, m, yerr=sd, fmt="o-", capsize=3, label="ours (mean +- std over test designs)")
-    if "auto" in ks:   # adaptive K (ges.py section 7b): its mean as a line, marked at the K it ended with
+    if "auto" in ks:   # adaptive K (ges.py section 9): its mean as a line, marked at the K it ended with
         a = ks["auto"]
         ax.axhline(a["mean"], color="purple", ls=":", lw=1)
         ax.plot([a["final_K"]], [a["mean"]], "s", color="purple", label=f"adaptive K (ends at K={a['final_K']})")
@@ -73,6 +79,7 @@ def fig_ksens(ks: dict, path: str) -> str:
 
 def level_of(task: str, score: float) -> int:
     """Invert ballu.level_score: the curriculum level a score J stands for (the nearest one)."""
+    import ballu
     levels = np.arange(ballu.MAX_LEVEL + 1)
     return int(levels[np.argmin(np.abs(ballu.level_score(task, levels) - score))])
 
@@ -98,3 +105,105 @@ def fig_curves(logs: list, path: str, title: str) -> str:
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def _snapshots(n_rounds: int, n: int = 4) -> list:
+    return sorted(set(int(round(i)) for i in np.linspace(0, n_rounds - 1, min(n, n_rounds))))
+
+
+def plot_territories(history: dict, path: str, background: Callable | None = None) -> str:
+    """Territory evolution: 2-sigma ellipses (the coverage contour of eq. 8) at a few rounds, with the probes
+    of that round coloured by winner and each centre's trail; pairwise projections when d = 3; plus coverage
+    and wins per round. `history` is the dict of history.json (or GESResult.history). `background(x_unit)`
+    -> int labels may shade planted regions (2-D only). Uses matplotlib's Agg canvas, no pyplot state."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Ellipse
+
+    space, rounds = Box.from_dict(history["space"]), history["rounds"]
+    lo, hi, d = space.lo, space.hi, space.d
+    pairs = [(0, 1)] if d == 2 else [(i, j) for i in range(d) for j in range(i + 1, d)]
+    snaps = _snapshots(len(rounds))
+    ids_of = lambda h: h.get("ids", list(range(len(h["mu"]))))          # noqa: E731  (ges.py section 9)
+    trained_of = lambda h: h.get("ids_trained", ids_of(h))              # noqa: E731  the winners' index space
+    fig = Figure(figsize=(3.3 * (len(snaps) + 1), 3.1 * len(pairs) + 0.4), layout="constrained")
+    axes = fig.subplots(len(pairs), len(snaps) + 1, squeeze=False)
+    K0, K1 = len(rounds[0]["mu"]), len(rounds[-1]["mu"])
+    for r_i, (i, j) in enumerate(pairs):
+        for c_i, s in enumerate(snaps):
+            ax, h = axes[r_i, c_i], rounds[s]
+            if background is not None and d == 2:  # planted regions: light fill + dashed borders
+                g = np.linspace(0, 1, 300)
+                gx, gy = np.meshgrid(g, g)
+                lab = background(np.stack([gx.ravel(), gy.ravel()], 1)).reshape(gx.shape)
+                px, py = lo[0] + gx * (hi[0] - lo[0]), lo[1] + gy * (hi[1] - lo[1])
+                levels = np.arange(lab.max() + 2) - 0.5
+                ax.contourf(px, py, lab, levels=levels, cmap="Greys", vmin=-1, vmax=3 * lab.max() + 3)
+                ax.contour(px, py, lab, levels=levels[1:-1], colors="k", linewidths=0.8, linestyles="--")
+            probes = space.from_unit(np.array(h["probes_unit"]).reshape(-1, d))
+            for k, sid in enumerate(ids_of(h)):   # colour by id: a specialist keeps its colour through merges
+                col = COLORS[sid % len(COLORS)]
+                mu, sg = np.array(h["mu"][k]), np.array(h["sigma"][k])
+                ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc=col, ec=col, alpha=0.18, lw=0))
+                ax.add_patch(Ellipse((mu[i], mu[j]), 4 * sg[i], 4 * sg[j], fc="none", ec=col, lw=1.6))
+                trail = np.array([rounds[t]["mu"][ids_of(rounds[t]).index(sid)] for t in range(s + 1)
+                                  if sid in ids_of(rounds[t])])
+                ax.plot(trail[:, i], trail[:, j], "-", color=col, lw=0.8, alpha=0.7)
+                ax.plot(mu[i], mu[j], "o", color=col, mec="k", ms=6)
+            for k, sid in enumerate(trained_of(h)):
+                won = np.array(h["winner"]) == k
+                if won.any():   # black-edged, above the ellipses: a probe is one point, it must stand out
+                    ax.plot(probes[won, i], probes[won, j], "D", color=COLORS[sid % len(COLORS)], ms=4.5, mec="k",
+                            mew=0.6, zorder=4)
+            ax.set_xlim(lo[i], hi[i])
+            ax.set_ylim(lo[j], hi[j])
+            ax.set_xlabel(space.names[i])
+            ax.set_ylabel(space.names[j])
+            if r_i == 0:
+                ax.set_title(f"round {h['round']}: coverage {h['coverage']:.0%}", fontsize=10)
+        axes[r_i, -1].axis("off")
+    ax = axes[0, -1]
+    ax.axis("on")
+    t = [h["round"] for h in rounds]
+    ax.plot(t, [100 * h["coverage"] for h in rounds], "k.-", label="MC coverage", zorder=3)   # above the bars
+    ax.axhline(100 * history["config"]["target_coverage"], color="gray", ls="--", lw=1, label="target")
+    every = sorted({sid for h in rounds for sid in trained_of(h)} | set(ids_of(rounds[0])))
+    wins = np.array([[dict(zip(trained_of(h), h["wins"])).get(sid, 0) for sid in every] for h in rounds])
+    bottom = np.zeros(len(t))
+    for c, sid in enumerate(every):
+        share = 100 * wins[:, c] / np.maximum(wins.sum(1), 1)
+        ax.bar(t, share, bottom=bottom, color=COLORS[sid % len(COLORS)], alpha=0.35, width=0.8,
+               label=f"specialist {sid} wins")
+        bottom += share
+    if any("events" in h for h in rounds):   # adaptive K: K per round, splits and merges marked
+        ax2 = ax.twinx()
+        ks = [len(h["mu"]) for h in rounds]
+        ax2.plot(t, ks, "-", color="purple", lw=1.2, label="K (right axis)")
+        for kind, mark in (("split", "^"), ("merge", "v")):
+            at = [(h["round"], len(h["mu"])) for h in rounds for e in h.get("events", []) if e["kind"] == kind]
+            if at:
+                ax2.plot(*zip(*at), mark, color="purple", ms=7, ls="none", label=f"{kind} (right axis)")
+        ax2.set_ylim(0, max(ks) + 1)
+        ax2.set_ylabel("K")
+        h2, l2 = ax2.get_legend_handles_labels()
+    else:
+        h2, l2 = [], []
+    ax.set_ylim(0, 105)
+    ax.set_xticks(t)
+    ax.set_xlabel("round")
+    ax.set_ylabel("coverage %  /  share of probes won")
+    ax.set_title("coverage and wins per round", fontsize=10)
+    handles, labels = ax.get_legend_handles_labels()
+    handles, labels = handles + h2, labels + l2
+    if len(pairs) > 1:  # 3-D: the legend gets its own (otherwise empty) cell
+        axes[1, -1].legend(handles, labels, loc="center", fontsize=9)
+    else:   # 2-D: below the panel, where it covers neither the coverage line nor the bars
+        ax.legend(handles, labels, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
+    fig.suptitle(f"GES territories (2-sigma ellipses, diamonds: probes won this round), "
+                 + (f"K={K0}" if K0 == K1 and "events" not in rounds[-1] else f"adaptive K: {K0} -> {K1}")
+                 + f", d={d}"
+                 + ("; grey/dashed: planted regions" if background is not None and d == 2 else ""))
+    fig.savefig(path, dpi=110)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------------
