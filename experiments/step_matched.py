@@ -5,14 +5,16 @@
     python -m experiments.step_matched prepare docs/overnight/seed1 --state d06d56e:docs/overnight/seed1/state.tar \
         --out ~/runs/sm/seed1
     python -m experiments.step_matched run ~/runs/sm/seed0 [--workers 2]       # resumable: rerun to go on
+    python -m experiments.ges_territories extract 9eb76ac:docs/overnight/seed0/state/ges.tar.gz ~/runs/terr/seed0
+    python -m experiments.step_matched rescore ~/runs/sm/seed0 ~/runs/terr/seed0   # GES, e2e MLP on this CPU
     python -m experiments.step_matched table docs/overnight/seed0 ~/runs/sm/seed0 [...pairs] [--out MD]
-    python -m experiments.step_matched merge docs/overnight/seed0 ~/runs/sm/seed0   # into the committed run
 
 A committed run keeps its e2e MLPs without optimiser state; the ones GES warm-started from (optimiser, normaliser,
 curriculum) are in git history. `prepare` copies them and the run's GES stage into a work folder, `run` trains and
 scores each cell's step-matched e2e MLP there exactly as run_all's stage does, `table` sets it beside the run's
-committed GES and e2e MLP test scores (same designs, paired), `merge` adds it to the committed run's results.json
-and REPORT.md (then `python -m report.cross_seed` renews CLAIMS.md). Results: docs/ges_schedule/.
+GES and e2e MLP (same designs, paired). J is bit for bit on one CPU model and code only (docs/speed): the run's own
+GES and e2e MLP scores came from another machine, so `rescore` scores them again here, and `table` compares the
+three on one machine's numbers. Results: docs/ges_schedule/.
 """
 from __future__ import annotations
 
@@ -79,55 +81,39 @@ def run(out: str, workers: int) -> None:
     run_all.run_stage(r, "matched")
 
 
-def merge(run_folder: str, work: str) -> None:
-    """The step-matched stage of `work` into the committed run `run_folder`: its results.json gains the stage, its
-    REPORT.md is rewritten from results.json (Table II's column, the head-to-head's, the claim rows), and each
-    cell's scored policy is kept (optimiser state dropped) in policies/mlp_matched-<cell>/policy_best.pt. The
-    run's wall table is unchanged: the stage ran afterwards, untimed (its training logs: docs/ges_schedule)."""
-    import shutil
-    import tempfile
-    import torch
-    res = json.load(open(os.path.join(run_folder, "results.json")))
-    res["stages"]["matched"] = json.load(open(os.path.join(work, "stages", "matched.json")))["result"]
-    tmp = tempfile.mkdtemp(prefix="step_matched_")
-    try:
-        for name, result in res["stages"].items():
-            write_json(os.path.join(tmp, "stages", f"{name}.json"), {"stage": name, "result": result})
-        write_json(os.path.join(tmp, "stage_seconds.json"), res["stage_seconds"])
-        for f in ("manifest.json", "calibration.json", "test_scores.csv"):
-            shutil.copy(os.path.join(run_folder, f), tmp)
-        for d in ("ges", "policies"):   # territory split and training rate read them
-            os.symlink(os.path.abspath(os.path.join(run_folder, d)), os.path.join(tmp, d))
-        man = res["manifest"]
-        run_all.report(run_all.Run(tmp, run_all.PRESETS[man["preset"]], int(man["seed"]), 2), man)
-        for f in ("REPORT.md", "results.json"):
-            shutil.copy(os.path.join(tmp, f), os.path.join(run_folder, f))
-    finally:
-        shutil.rmtree(tmp)
-    for t in run_all.TASKS:
-        for s in run_all.SPACES:
-            name = f"{run_all.MATCHED}-{t}-{s}"
-            st = run_all.ppo.load_checkpoint(os.path.join(work, "policies", name, "policy_best.pt"))
-            st = {k: v for k, v in st.items() if k not in ("optimizer", "run")}
-            dst = os.path.join(run_folder, "policies", name, "policy_best.pt")
-            os.makedirs(os.path.dirname(dst), exist_ok=True)
-            torch.save(st, dst)
-            print(f"{dst}: {st['steps']:,} steps")
+def rescore(work: str, ges_runs: str, workers: int) -> None:
+    """The e2e MLP's and GES's test score sets once more, on this machine: J is bit for bit on one CPU model only
+    (docs/speed), so a run scored on another model is compared with its step-matched e2e MLP on one machine's
+    numbers. `ges_runs`: a folder holding the run's main GES runs (experiments.ges_territories extract)."""
+    if not os.path.exists(os.path.join(work, "ges")):
+        os.symlink(os.path.abspath(os.path.join(ges_runs, "ges")), os.path.join(work, "ges"))
+    man = json.load(open(os.path.join(work, "manifest.json")))
+    r = run_all.Run(work, run_all.PRESETS[man["preset"]], int(man["seed"]), workers)
+    jobs = [run_all.ScoreSet(work, r.preset, r.seed, t, s, m, r.main_ges(t, s) if m == "ges" else None)
+            for t in run_all.TASKS for s in run_all.SPACES for m in ("mlp", "ges")]
+    run_all.score_sets(r, jobs, "score sets on this machine")
 
 
 def cell_rows(run_folder: str, work: str) -> list:
-    """Per cell: J of GES, the e2e MLP and the step-matched e2e MLP on the run's test designs, paired."""
+    """Per cell: J of GES, the e2e MLP and the step-matched e2e MLP on the run's test designs, paired; GES and the
+    e2e MLP as rescored on this machine (rescore) where they are, else the run's own test scores."""
     rows = list(csv.DictReader(open(os.path.join(run_folder, "test_scores.csv"))))
     matched = json.load(open(os.path.join(work, "stages", "matched.json")))["result"]
+    man = json.load(open(os.path.join(work, "manifest.json")))
+    r = run_all.Run(work, run_all.PRESETS[man["preset"]], int(man["seed"]), 1)
     out = []
     for t in run_all.TASKS:
         for s in run_all.SPACES:
-            cell = [r for r in rows if r["task"] == t and r["space"] == s]
-            g, m = (np.array([float(r[k]) for r in cell]) for k in ("ges", "mlp"))
+            here = [r.path("scores", f"{run_all.score_key(r, t, s, m)}.json") for m in ("ges", "mlp")]
+            if all(os.path.exists(p) for p in here):
+                g, m = (np.array(json.load(open(p))["scores"]) for p in here)
+            else:
+                cell = [row for row in rows if row["task"] == t and row["space"] == s]
+                g, m = (np.array([float(row[k]) for row in cell]) for k in ("ges", "mlp"))
             mm = np.array(matched[f"{t}-{s}"]["scores"])
             out.append(dict(cell=f"{t} {s.upper()}", unit=run_all.UNIT[t], steps=matched[f"{t}-{s}"]["steps"],
-                            ges=g.mean(), mlp=m.mean(), matched=mm.mean(),
-                            vs_mlp=paired_comparison(g, m), vs_matched=paired_comparison(g, mm),
+                            rescored=all(os.path.exists(p) for p in here), ges=g.mean(), mlp=m.mean(),
+                            matched=mm.mean(), vs_mlp=paired_comparison(g, m), vs_matched=paired_comparison(g, mm),
                             matched_vs_mlp=paired_comparison(mm, m)))
     return out
 
@@ -139,13 +125,15 @@ def fmt(c: dict) -> str:
 def table(pairs: list) -> str:
     lines = ["| seed | cell | steps (matched) | GES | e2e MLP | e2e MLP, step-matched | GES - e2e MLP | "
              "GES - step-matched | step-matched - e2e MLP |", "|---" * 9 + "|"]
+    note = ""
     for run_folder, work in pairs:
         seed = json.load(open(os.path.join(work, "manifest.json")))["seed"]
         for r in cell_rows(run_folder, work):
-            lines.append(f"| {seed} | {r['cell']} ({r['unit']}) | {r['steps']:,} | {r['ges']:.1f} | {r['mlp']:.1f} | "
+            note = note or ("" if r["rescored"] else " (* GES and e2e MLP: the run's own scores, maybe another CPU)")
+            lines.append(f"| {seed} | {r['cell']} ({r['unit']}){'' if r['rescored'] else ' *'} | {r['steps']:,} | {r['ges']:.1f} | {r['mlp']:.1f} | "
                          f"{r['matched']:.1f} | {fmt(r['vs_mlp'])} | {fmt(r['vs_matched'])} | "
                          f"{fmt(r['matched_vs_mlp'])} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + note
 
 
 def main(argv=None) -> int:
@@ -159,9 +147,10 @@ def main(argv=None) -> int:
     p = sub.add_parser("run")
     p.add_argument("out")
     p.add_argument("--workers", type=int, default=2)
-    p = sub.add_parser("merge")
-    p.add_argument("run_folder")
+    p = sub.add_parser("rescore")
     p.add_argument("work")
+    p.add_argument("ges_runs")
+    p.add_argument("--workers", type=int, default=2)
     p = sub.add_parser("table")
     p.add_argument("pairs", nargs="+", help="RUN_FOLDER WORK_FOLDER, repeated")
     p.add_argument("--out")
@@ -170,8 +159,8 @@ def main(argv=None) -> int:
         prepare(a.run_folder, a.state, os.path.expanduser(a.out))
     elif a.cmd == "run":
         run(os.path.expanduser(a.out), a.workers)
-    elif a.cmd == "merge":
-        merge(a.run_folder, os.path.expanduser(a.work))
+    elif a.cmd == "rescore":
+        rescore(os.path.expanduser(a.work), os.path.expanduser(a.ges_runs), a.workers)
     else:
         if len(a.pairs) % 2:
             ap.error("table: give RUN_FOLDER WORK_FOLDER pairs")
