@@ -35,23 +35,19 @@ Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, r
 3. initialisation and the run's state, 4. the GES loop (Alg. 1), 5. the routed evaluator; then the machinery:
 6. the design box, 7. settings' checks, state files, history and result, 8. executors, 9. adaptive K (an
 option, ours: merge a specialist another serves as well, split a territory its specialist serves unevenly),
-10. the synthetic landscape, 11. benchmark and command line.
+10. the command line, whose code lives in experiments/ges_demo.py with the synthetic landscape and the benchmark.
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn); the figure of
-a run's territories is report.figures.plot_territories(history, path). `python ges.py --bench` times
-coverage/routing, `python ges.py --demo OUT` runs a synthetic landscape and writes OUT/territories.png
-(`--K auto --sites B` on B planted sites: adaptive K), `python ges.py --sweep` prints rounds to coverage per
-(n_init, F) on it.
+a run's territories is report.figures.plot_territories(history, path). `python ges.py --demo OUT` runs a
+synthetic landscape and writes OUT/territories.png (`--K auto --sites B` on B planted sites: adaptive K),
+`python ges.py --sweep` prints rounds to coverage per (n_init, F) on it, `--bench` times coverage/routing.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, replace
@@ -169,11 +165,10 @@ def sample_clipped(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, 
 def sample_probes(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n_probe: int = 100,
                   pool_size: int = 2000, band: tuple = (-2.5, -0.5)) -> np.ndarray:
     """Border probes [paper, Alg. 1 SampleBorder; facts]: pool_size uniform points, keep those whose
-    g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first). Outermost
-    first and the top-up below follow the authors' code (scripts/pec, not spelled out in the facts file):
-    it is what makes territories grow at a useful pace (random in-band picks grow them ~sqrt(rounds)).
-    If fewer than n_probe lie in the band, top up with the out-of-band points of lowest g, i.e. those
-    farthest from every territory. Returns (n_probe, d) unit points."""
+    g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first; this order and
+    the top-up are the authors' code, scripts/pec, not in the facts file; why: docs/choices.md). If fewer than
+    n_probe lie in the band, top up with the out-of-band points of lowest g, i.e. farthest from every territory.
+    Returns (n_probe, d) unit points."""
     pool = rng.random((pool_size, mu.shape[1]))
     g = log_f(pool, mu, sigma).max(axis=1)
     in_band = (g > band[0]) & (g < band[1])
@@ -295,10 +290,9 @@ class GESState:
 
 
 def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) -> GESState:
-    """Alg. 1 lines 1-5: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k.
-
-    The start depends on the space, the config and the seed only, never on the task [ours]: two tasks on one
-    space start from the same mu, sigma and eta_k, so their runs differ only by what the task teaches."""
+    """Alg. 1 lines 1-5: centres (eq. 5 approximation), sigma_0 at 12 % coverage, 50 designs per eta_k. The
+    start depends on the space, the config and the seed only, never on the task [ours]: two tasks on one space
+    start from the same mu, sigma and eta_k, so their runs differ only by what the task teaches."""
     mu = init_centers(config.init, config.K, space.d, rng_for(seed, INIT), config.fps_pool, config.lloyd_iters)
     sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
     eta = [sample_clipped(mu[k], sigma[k], rng_for(seed, INIT_DESIGNS, k), config.n_init_designs)
@@ -720,9 +714,9 @@ def score_all(executor, score_fn, run_dir, ids, ckpt, designs) -> tuple[np.ndarr
 # 9. Adaptive K [ours]: the paper's first open direction (Sec. VI), an option beside its fixed K
 # ---------------------------------------------------------------------------------------------------------
 # Each round every specialist also scores n_check designs drawn from every territory ("checks"): S[i, j] holds
-# specialist i's scores on territory j's checks. Scores are compared in units of the round's scale, the mean
-# over territories of the owner's mean score on its own checks, so the tolerances mean the same for a J in cm
-# and a planted quality in [0, 1] (scores >= 0 assumed, as both are).
+# specialist i's scores on territory j's checks, compared in units of the round's scale, the mean over
+# territories of the owner's mean score on its own checks (scores >= 0 assumed). Why each rule below, and the
+# study that measured them: docs/ges_adaptive/README.md, "The rules".
 def draw_checks(space: Box, config: GESConfig, seed: int, state: GESState) -> np.ndarray:
     """The round's checks, (K, n_check, d) unit designs drawn from each territory; (K, 0, d) with a fixed K."""
     if not config.adaptive:
@@ -767,17 +761,12 @@ def young(terr: dict, config: GESConfig, r: int) -> set:
 
 
 def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int, final: bool = False) -> dict:
-    """Retire each specialist whose territory another serves as well [ours]: j goes when some other specialist
-    i loses little on j's checks design by design, mean_c max(S[j, j, c] - S[i, j, c], 0) <= merge_tol x scale
-    (the test of X-means' and G-means' merge-back, Pelleg & Moore 2000, Hamerly & Elkan 2003, made on scores
-    instead of likelihoods: what counts is how well a design is served, not where it lies). Design by design,
-    not on the mean: a territory straddling two behaviours' regions is served better on the mean by the
-    behaviour of its larger part, yet still needs its own specialist for the rest. The absorber (the i of the
-    smallest loss) takes j's designs and keeps its checkpoint. Smallest losses first; a specialist absorbed or
-    absorbing this round is not merged again, and K stays >= K_min. Every specialist, the first K too, is
-    judged only after challenge_rounds rounds of its own training (at one, the planted ones are still
-    near-uniform mixtures, alike everywhere), or at the round cap (final: no more training). Winning no probes
-    is not enough: a contested border says nothing of a territory's interior."""
+    """Retire each specialist whose territory another serves as well [ours; X-means' / G-means' merge-back,
+    made on scores]: j goes when some other specialist i loses little on j's checks design by design,
+    mean_c max(S[j, j, c] - S[i, j, c], 0) <= merge_tol x scale. The absorber (the i of the smallest loss)
+    takes j's designs and keeps its checkpoint. Smallest losses first; a specialist absorbed or absorbing this
+    round is not merged again, and K stays >= K_min. Every specialist, the first K too, is judged only after
+    challenge_rounds rounds of its own training, or at the round cap (final: no more training)."""
     K, scale = len(S), score_scale(S)
     cands = []
     for j in range(K):
@@ -820,15 +809,12 @@ def two_means(x: np.ndarray, iters: int = 10) -> np.ndarray:
 
 
 def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: int, d: int) -> dict:
-    """Challenge each territory its specialist serves unevenly [ours]: 2-means its checks (G-means' split,
-    Hamerly & Elkan 2003); if the specialist's mean score on the two halves differs by more than split_gap x
-    scale, the lower half becomes a challenger's territory, started from the parent's checkpoint (it only has
-    to diverge where its half differs). Scores alone cannot tell a design the wrong behaviour serves from one
-    that is hard for every behaviour; the challenger's next round can: if it learns nothing its parent does
-    not know, the merge test retires it. The parent keeps the upper half (its designs and checks, split by
-    2-means label). At most one split per territory and round, K <= K_max; a territory waits a round after a
-    split, split_cooldown rounds after absorbing one, doubled for each challenger of its own it took back
-    (exponential backoff, as in retrying a refuted test: a refuted challenger is not reborn every round)."""
+    """Challenge each territory its specialist serves unevenly [ours; G-means' split test]: 2-means its checks;
+    if the specialist's mean score on the two halves differs by more than split_gap x scale, the lower half
+    becomes a challenger's territory, started from the parent's checkpoint; the parent keeps the upper half
+    (its designs and checks, split by 2-means label). At most one split per territory and round, K <= K_max;
+    a territory waits a round after a split, split_cooldown rounds after absorbing one, doubled for each
+    challenger of its own it took back (exponential backoff: a refuted challenger is not reborn every round)."""
     scale, out = score_scale(S), dict(terr, ids=list(terr["ids"]), eta=list(terr["eta"]), ckpt=list(terr["ckpt"]),
                                       wait=dict(terr["wait"]), events=list(terr["events"]), born=dict(terr["born"]),
                                       parent=dict(terr["parent"]))
@@ -864,246 +850,13 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 10. Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, --demo)
+# 10. Command line: --demo, --sweep, --bench (experiments/ges_demo.py: the synthetic landscape, the benchmark)
 # ---------------------------------------------------------------------------------------------------------
-@dataclass(eq=False)
-class PlantedLandscape:
-    """Planted sites b in the unit cube; behaviour b is good near site b: quality q_b(x) =
-    exp(-|x - site_b|^2 / (2 width^2)), so the best behaviour's regions are the sites' Voronoi cells.
-    A specialist is a logit vector p over behaviours; its score on x is sum_b softmax(p)_b q_b(x). train()
-    really improves it: gradient ascent on the mean score over designs drawn from its territory, i.e. toward
-    the behaviour best on the designs it is given. Checkpoints are small JSON files. Picklable.
-    `cap` bounds the logits: an unbounded softmax saturates (after a few rounds a specialist's other behaviours
-    weigh e^-6 and it can no longer re-learn), which a PPO policy fine-tuned on new designs does not; adaptive
-    K's challengers start from their parent and must be able to diverge, so its landscapes cap at 2 (the best
-    behaviour then weighs >= 0.98 of the mixture) [ours]."""
-    space: Box
-    sites: np.ndarray
-    width: float = 0.3
-    n_designs: int = 64
-    steps: int = 25
-    lr: float = 5.0
-    cap: float | None = None
-
-    def quality(self, x_unit: np.ndarray) -> np.ndarray:
-        d2 = ((np.atleast_2d(x_unit)[:, None, :] - np.asarray(self.sites)[None]) ** 2).sum(-1)
-        return np.exp(-d2 / (2 * self.width ** 2))
-
-    def region(self, x_unit: np.ndarray) -> np.ndarray:
-        return np.argmax(self.quality(x_unit), axis=1)
-
-    def policy(self, ckpt: str | None) -> np.ndarray:
-        if ckpt is None:
-            return np.zeros(len(self.sites))
-        with open(ckpt) as fh:
-            return np.array(json.load(fh)["p"])
-
-    def train(self, k, round, sampler, ckpt_in, ckpt_out):
-        rng, p = np.random.default_rng(sampler.seed), self.policy(ckpt_in)
-        for _ in range(self.steps):
-            qbar = self.quality(self.space.to_unit(sampler(rng, self.n_designs))).mean(axis=0)
-            pi = np.exp(p - p.max())
-            pi /= pi.sum()
-            p = p + self.lr * pi * (qbar - pi @ qbar)  # d/dp of sum_b softmax(p)_b qbar_b
-            p = p if self.cap is None else np.clip(p, -self.cap, self.cap)
-        _atomic_json(ckpt_out, {"p": p.tolist(), "k": k, "round": round})
-
-    def score(self, k, ckpt, designs):
-        p = self.policy(ckpt)
-        pi = np.exp(p - p.max())
-        return self.quality(self.space.to_unit(designs)) @ (pi / pi.sum())
-
-
-DEMO_SITES_2D = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])
-SITES = 1000   # stream id of planted sites (apart from GES's own streams)
-
-
-def planted_sites(B: int, dim: int, seed: int) -> np.ndarray:
-    """B sites in [0.1, 0.9]^dim drawn from the seed, each at least 0.7 x (0.8^dim / B)^(1/dim) from the
-    others (70 % of the spacing of B evenly spread sites), so that every site is its own behaviour's region
-    and not a copy of a neighbour's [ours]."""
-    if not (isinstance(B, (int, np.integer)) and B >= 1):
-        raise ValueError(f"sites={B!r} not allowed: an integer >= 1")
-    rng, sep = rng_for(seed, SITES), 0.7 * (0.8 ** dim / B) ** (1.0 / dim)
-    for _ in range(1000):   # restart when the sites drawn so far leave no room
-        sites = []
-        for _ in range(200 * B):
-            x = rng.uniform(0.1, 0.9, dim)
-            if all(np.linalg.norm(x - y) >= sep for y in sites):
-                sites.append(x)
-                if len(sites) == B:
-                    return np.array(sites)
-    raise RuntimeError(f"no {B} sites {sep:.2f} apart found in [0.1, 0.9]^{dim}")
-
-
-def planted(B: int, dim: int, seed: int) -> PlantedLandscape:
-    """Adaptive K's test landscape: B planted sites (planted_sites), width 0.2, logits capped at 2 [ours]."""
-    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
-    return PlantedLandscape(space, planted_sites(B, dim, seed), width=0.2, cap=2.0)
-
-
-def demo_landscape(dim: int) -> tuple[PlantedLandscape, int]:
-    """The demo's landscape and K: three planted sites in 2-D with K = 3, six in 3-D with K = 6."""
-    space = Box([f"theta_{i + 1}" for i in range(dim)], [0.0] * dim, [1.0] * dim)
-    K = 3 if dim == 2 else 6
-    return PlantedLandscape(space, DEMO_SITES_2D if dim == 2 else rng_for(12345).uniform(0.1, 0.9, (K, 3))), K
-
-
-def routed_mean(res: GESResult, land: PlantedLandscape, n: int = 2000, seed: int = 0) -> float:
-    """Mean score of n uniform test designs, each scored by the specialist the density router picks (eq. 10)."""
-    designs = res.space.sample_uniform(rng_for(seed, SITES, 1), n)
-    return float(np.mean(routed_evaluator(res, land.score, "density")(designs)))
-
-
-def draw_territories(res: GESResult, out_dir: str, land: PlantedLandscape) -> str:
-    """out_dir/territories.png, the planted regions shaded in 2-D. The figure lives in report.figures with the
-    others; imported here, when drawn, since report imports ges (ges imports no report at load)."""
-    from report.figures import plot_territories
-    return plot_territories(res.history, os.path.join(out_dir, "territories.png"),
-                            background=land.region if res.space.d == 2 else None)
-
-
-def demo_adaptive(out_dir: str, K: str | int = "auto", B: int = 3, dim: int = 2, seed: int = 0,
-                  workers: int = 1, max_rounds: int = 20) -> tuple:
-    """GES on planted(B, dim, seed) with adaptive K (K = "auto", starting at K_max: merging takes a round,
-    splitting three, docs/ges_adaptive) or a fixed K; writes out_dir/territories.png. Returns (result, mean
-    score of routed_mean)."""
-    land = planted(B, dim, seed)
-    if K == "auto":
-        cfg = GESConfig(K=GESConfig.K_max, adaptive=True, max_rounds=max_rounds)
-    else:
-        cfg = GESConfig(K=int(K), max_rounds=max_rounds)
-    ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
-    with ex:
-        res = run_ges(land.space, land.train, land.score, out_dir, cfg, seed, ex, progress=None)
-    draw_territories(res, out_dir, land)
-    return res, routed_mean(res, land, seed=seed)
-
-
-def demo(out_dir: str, dim: int = 2, seed: int = 0, workers: int = 1) -> GESResult:
-    """Run GES on the planted landscape (a 2-D box with K=3, or 3-D with K=6); write out_dir/territories.png."""
-    land, K = demo_landscape(dim)
-    ex = SerialExecutor() if workers <= 1 else ProcessPoolExecutor(workers)
-    with ex:
-        res = run_ges(land.space, land.train, land.score, out_dir, GESConfig(K=K), seed, ex)
-    print(f"wrote {draw_territories(res, out_dir, land)}")
-    return res
-
-
-def rounds_to_coverage(dim: int, n_init: int, n_probe: int, seeds=(0, 1, 2), max_rounds: int = 20) -> list:
-    """Rounds GES takes to reach its target coverage on the planted landscape (K = 3 in 2-D, 6 in 3-D), per
-    seed, as (rounds, final coverage). Why: coverage grows by refitting each territory to its designs, n_init
-    seeds plus the probes it wins, so its growth per round is set by F / n_init, not by F alone; this measures
-    what a preset's probe budget buys (`python ges.py --sweep`)."""
-    land, K = demo_landscape(dim)
-    out = []
-    for seed in seeds:
-        cfg = GESConfig(K=K, n_init_designs=n_init, n_probe=n_probe, max_rounds=max_rounds)
-        with tempfile.TemporaryDirectory() as d:
-            res = run_ges(land.space, land.train, land.score, d, cfg, seed, SerialExecutor(), progress=None)
-        out.append((res.rounds, res.coverage))
-    return out
-
-
-def sweep(pairs=((50, 100), (50, 16), (50, 4), (16, 32), (8, 16), (8, 8))):
-    """Print rounds to coverage for (n_init, F) pairs: the facts' (50, 100), smaller budgets, and the same
-    F / n_init ratio at smaller sizes."""
-    for dim in (2, 3):
-        for n_init, F in pairs:
-            r = rounds_to_coverage(dim, n_init, F)
-            print(f"D{dim} (K={3 if dim == 2 else 6})  n_init {n_init:3d}  F {F:3d}  F/n_init {F / n_init:5.2f}: "
-                  f"rounds {[x[0] for x in r]}, final coverage {[round(x[1], 2) for x in r]}", flush=True)
-
-
-# ---------------------------------------------------------------------------------------------------------
-# 11. Benchmark and command line
-# ---------------------------------------------------------------------------------------------------------
-def _best_time(fn, repeats: int = 7, loops: int = 5) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(loops):
-            fn()
-        best = min(best, (time.perf_counter() - t0) / loops)
-    return best
-
-
-def bench() -> dict:
-    """Time one coverage estimate (N_mc = 10^4, K = 6, d = 3) and one routing of 10^4 points, next to a
-    reference measured in the same run: plain numpy density of ONE Gaussian on the same points."""
-    rng = rng_for(0)
-    pts, mu, sigma = rng.random((10_000, 3)), rng.random((6, 3)), 0.05 + 0.2 * rng.random((6, 3))
-    ref = _best_time(lambda: np.exp(-0.5 * (((pts - mu[0]) / sigma[0]) ** 2).sum(1)) / np.prod(sigma[0]))
-    t = {"reference_one_gaussian": ref, "coverage_K6": _best_time(lambda: coverage(mu, sigma, pts)),
-         "route_K6": _best_time(lambda: route(pts, mu, sigma))}
-    for name, s in t.items():
-        print(f"{name:24s} {1e3 * s:8.3f} ms   ({s / ref:5.1f} x reference)")
-    return t
-
-
 def main(argv=None) -> int:
-    """The command line; a bad argument is one line naming it and its allowed values (exit 2), checked before
-    anything is written; a failed --demo leaves no folder it created behind."""
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--bench", action="store_true", help="time coverage and routing")
-    ap.add_argument("--demo", metavar="OUT_DIR", help="run the synthetic landscape, write territories.png")
-    ap.add_argument("--sweep", action="store_true", help="rounds to 95 %% coverage per (n_init, F), planted "
-                    "landscape, seeds 0-2")
-    ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
-    ap.add_argument("--seed", type=int, default=0, help="demo: an integer >= 0")
-    ap.add_argument("--workers", type=int, default=1, help="demo: processes, >= 1 (>1 uses a ProcessPoolExecutor)")
-    ap.add_argument("--K", help="demo on a landscape of --sites sites: 'auto' (adaptive K, section 9, starting at "
-                    "K_max = 8) or a fixed K >= 1")
-    ap.add_argument("--sites", type=int, help="demo: planted sites B >= 1 drawn from --seed (default 3 with --K)")
-    args = ap.parse_args(argv)
-    made = None
-    try:
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed} must be an integer >= 0")
-        if args.workers < 1:
-            raise ValueError(f"--workers {args.workers} must be an integer >= 1")
-        if args.K is not None and args.K != "auto" and not (args.K.isdigit() and int(args.K) >= 1):
-            raise ValueError(f"--K {args.K} must be 'auto' or an integer >= 1")
-        if args.sites is not None and args.sites < 1:
-            raise ValueError(f"--sites {args.sites} must be an integer >= 1")
-        if (args.K is not None or args.sites is not None) and args.demo is None:
-            raise ValueError("--K and --sites go with --demo OUT_DIR")
-        if args.demo is not None:
-            if not args.demo.strip():
-                raise ValueError("--demo needs a folder name")
-            out = os.path.abspath(args.demo)
-            if os.path.exists(out) and not os.path.isdir(out):
-                raise ValueError(f"--demo {args.demo} exists and is not a folder")
-            made = None if os.path.exists(out) else out
-            try:
-                os.makedirs(out, exist_ok=True)
-                if not os.access(out, os.W_OK):
-                    raise PermissionError("read-only")
-            except OSError as e:
-                raise OSError(f"--demo {args.demo}: cannot write there ({e.strerror or e})") from None
-        if args.bench:
-            bench()
-        if args.demo is not None and args.K is None and args.sites is None:
-            demo(args.demo, args.dim, args.seed, args.workers)
-        elif args.demo is not None:
-            res, m = demo_adaptive(args.demo, args.K or "auto", args.sites or 3, args.dim, args.seed, args.workers)
-            for h in res.history["rounds"][1:]:
-                events = "; ".join(f"{e['kind']} {e['id']}->{e.get('into', e.get('child'))}: {e['reason']}"
-                                   for e in h.get("events", []))
-                print(f"round {h['round']:2d}: K {len(h['mu'])}, coverage {h['coverage']:.1%}"
-                      + (f"  ({events})" if events else ""))
-            print(f"wrote {os.path.join(args.demo, 'territories.png')}")
-            print(f"final K = {len(res.ckpt)}, coverage = {100 * res.coverage:.1f} %, mean score = {m:.4f}")
-        if args.sweep:
-            sweep()
-        if not (args.bench or args.demo is not None or args.sweep):
-            ap.print_help()
-        return 0
-    except (ValueError, OSError) as e:   # bad arguments, an unwritable folder, a run_dir of another run
-        if made and os.path.isdir(made):
-            shutil.rmtree(made, ignore_errors=True)
-        print(f"ges.py: error: {str(e).splitlines()[0]}", file=sys.stderr)
-        return 2
+    """`python ges.py --demo OUT [--K auto --sites B] | --sweep | --bench`: experiments/ges_demo.py's command
+    line, imported when run (ges imports nothing of experiments/ at load)."""
+    from experiments.ges_demo import main as demo_main
+    return demo_main(argv)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import ballu
 import ges
 import ppo
 import run_all
-from experiments import ballu_capability, ppo_ballu, ppo_protocol, probe_agreement
+from experiments import ballu_capability, ges_demo, ppo_ballu, ppo_protocol, probe_agreement
 from report import figures, tables
 from runkit import logs, plan, pool, progress
 from runkit import stats as rstats
@@ -1675,11 +1675,11 @@ def test_ges_density_router_broad_vs_narrow():
 # =========================================================================================================
 # ges: the loop on a synthetic landscape (Alg. 1)
 # =========================================================================================================
-SITES = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])  # = ges.DEMO_SITES_2D, repeated to pin the test
+SITES = np.array([[0.15, 0.2], [0.85, 0.35], [0.4, 0.85]])  # = ges_demo.DEMO_SITES_2D, repeated to pin the test
 
 
 def _land(space=None):
-    return ges.PlantedLandscape(space or D2_BOX, SITES)
+    return ges_demo.PlantedLandscape(space or D2_BOX, SITES)
 
 
 def _run(run_dir, land=None, executor=None, train=None, config=None, seed=0):
@@ -1728,8 +1728,8 @@ def test_ges_synthetic_reaches_coverage_and_specialises(synthetic_run):
 def test_ges_coverage_growth_is_set_by_probes_per_seed_design():
     """Refits average the n_init seeds with the won probes, so coverage grows with F / n_init: 16 probes
     against 8 seeds reach the stopping rule, 4 against 50 barely move a territory and hit the round cap."""
-    small = ges.rounds_to_coverage(2, n_init=8, n_probe=16, seeds=(0,))[0]
-    diluted = ges.rounds_to_coverage(2, n_init=50, n_probe=4, seeds=(0,))[0]
+    small = ges_demo.rounds_to_coverage(2, n_init=8, n_probe=16, seeds=(0,))[0]
+    diluted = ges_demo.rounds_to_coverage(2, n_init=50, n_probe=4, seeds=(0,))[0]
     assert small[1] >= 0.95 and small[0] < 20, small     # measured: 0.96 in 11 rounds
     assert diluted[0] == 20 and diluted[1] < 0.4, diluted   # stopped by the round cap, far from coverage
 
@@ -1819,7 +1819,7 @@ def test_ges_process_pool_equals_serial(synthetic_run, tmp_path):
 
 def test_ges_seed_changes_run_and_3d_runs(tmp_path):
     cfg = ges.GESConfig(K=6, max_rounds=3)
-    land3 = ges.PlantedLandscape(D3_BOX, ges.rng_for(12345).uniform(0.1, 0.9, (6, 3)))
+    land3 = ges_demo.PlantedLandscape(D3_BOX, ges.rng_for(12345).uniform(0.1, 0.9, (6, 3)))
     a = _run(tmp_path / "a", land3, config=cfg, seed=1)
     b = _run(tmp_path / "b", land3, config=cfg, seed=2)
     assert a.rounds == 3 and a.mu_unit.shape == (6, 3)
@@ -1887,7 +1887,7 @@ def test_ges_sampler_is_picklable_clipped_and_physical():
 
 
 def test_ges_bench_runs():
-    t = ges.bench()
+    t = ges_demo.bench()
     assert set(t) == {"reference_one_gaussian", "coverage_K6", "route_K6"} and all(v > 0 for v in t.values())
 
 
@@ -1934,7 +1934,7 @@ def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tm
 # ges: adaptive K (ges.py section 9) on planted landscapes
 # =========================================================================================================
 def _adaptive(run_dir, B, K, seed=0, dim=2, train=None, **kw):
-    land = ges.planted(B, dim, seed)
+    land = ges_demo.planted(B, dim, seed)
     return land, _run(run_dir, land, train=train, config=ges.GESConfig(K=K, adaptive=True, **kw), seed=seed)
 
 

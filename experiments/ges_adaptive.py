@@ -1,6 +1,6 @@
 """Study: GES with adaptive K (ges.py section 9) against fixed K on planted landscapes (docs/ges_adaptive).
 
-For B planted sites (ges.planted: B behaviours, each best in its own region) and 10 seeds per setting, in 2-D and
+For B planted sites (ges_demo.planted: B behaviours, each best in its own region) and 10 seeds per setting, in 2-D and
 3-D, run GES with K = auto (starting at K_max = 8) and with fixed K in {1, 3, 6} and K = B; per run record the final K,
 the rounds to 95 % coverage (or the cap of 20) and the mean score of 2,000 uniform test designs routed by eq. 10.
 
@@ -24,6 +24,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import ges  # noqa: E402
+from experiments import ges_demo  # noqa: E402
 from report.figures import COLORS  # noqa: E402
 
 BS, DIMS, FIXED = (1, 2, 3, 5, 8), (2, 3), (1, 3, 6)
@@ -51,7 +52,7 @@ def one(B: int, dim: int, seed: int, K) -> dict:
     t0 = time.time()
     ges.initial_state = _cached_initial_state   # this process's runs only
     with tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None) as d:
-        res, m = ges.demo_adaptive(d, K, B, dim, seed)
+        res, m = ges_demo.demo_adaptive(d, K, B, dim, seed)
     rounds = res.history["rounds"]
     return {"B": B, "dim": dim, "seed": seed, "K": K, "final_K": len(res.ckpt), "rounds": res.rounds,
             "coverage": res.coverage, "mean_score": m, "K_per_round": [len(h["mu"]) for h in rounds],

@@ -1,7 +1,7 @@
 """The figures' plotting and measuring helpers that need no run: GES's territories (Fig. 6), Fig. 7, learning
 curves, toe-height traces and the gait features Fig. 5's claim is measured by. run_all.py's figure stage feeds
 them a run's numbers. ballu is imported by the two helpers that run the robot, so the territory figure (which
-ges.py's demo draws too) needs none."""
+experiments/ges_demo.py draws too) needs none."""
 from __future__ import annotations
 
 import os
