@@ -9,24 +9,27 @@ Read top to bottom, the paper's experiments section in order:
      design sampler; GES's train and score callables (ges.py's contract); J(theta) of every method, GES's
      through the density router (eq. 10, ges.RoutedEvaluator)
   2. presets: every budget of a run in one dataclass
-  3. stages (each a function, each name usable with --only):
+  3. stages (each a function, each name usable with --only), in the order a run runs them:
        table1     the design space and the baseline design                       (paper Table I)
        baselines  PPO policies: baseline design, e2e MLP and e2e MoE per task/space (Sec. V-A)
        ges        GES stage 1 for obstacle/ramp x D2/D3 (K = 3 / 6)                 (Alg. 1)
+       matched    each cell's e2e MLP trained on for a specialist's steps           (ours: no paper counterpart)
        table2     mean score over test designs, TPE peaks, head-to-head wins       (Table II, Sec. V-B)
        table3     GES with grid / random / fps / fps+lloyd init                     (Table III)
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
-       figures    Figs. 1, 3-8 and every learning curve
-  4. figures (helpers that need no run: report/figures.py)
+       figures    Figs. 1, 3-8 and every learning curve (drawn by report/figures.py)
+  4. the stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches, per-design BO
   5. REPORT.md and results.json from the stages' results; the paper's numbers, the header (budgets, seed,
      commit), every table with each cell as "ours (paper)" and the wall times in report/
-  6. machinery: derived seeds, Dask, a kill hook for the resume test, the job --rates and a calibration time
-  7. the command line
+  6. machinery: derived seeds, work files and their repair, the files the code hash covers and a Dask cluster
+     gets, the job --rates and a calibration time
+  7. the command line: this experiment as runkit.cli runs it
 Machinery that knows nothing of BALLU or GES (progress and the one ETA formula, atomic JSON and damaged files,
-the training log, the output folder, the stage clock, Dask, the process pool and jobs side by side, statistics,
-and what a preset costs: --plan's arithmetic, its calibration, --rates' measurement) lives in runkit/.
-Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see kill_hook) to simulate a kill.
+the training log, the output folder and the code hash, the stage clock, Dask, the process pool and jobs side by
+side, statistics, what a preset costs: --plan's arithmetic, its calibration, --rates' measurement; and the command
+line of a run made of stages, each run once) lives in runkit/.
+Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see runkit.cli.kill_hook) to simulate a kill.
 
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
 policies/, ges/, tpe/, stages/). Every stage writes its artifacts when it finishes and long stages checkpoint
@@ -39,21 +42,16 @@ tpe.py under the preset's budgets, which are far below the paper's except in the
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import functools
 import glob
 import hashlib
-import json
-import math
-import multiprocessing as mp
 import os
 import sys
 import threading
 import time
 import zlib
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -61,22 +59,20 @@ import ballu
 import ges
 import ppo
 import tpe
-from report.paper import METHOD_NAMES, PAPER_TABLE2
-from report.figures import (COLORS, _plt, fig_curves, fig_ksens, gait_features, level_of, plot_territories,
-                            toe_heights)
+from report.figures import (distinct_designs, fig_curves, fig_distributions, fig_experts, fig_ksens, fig_sensitivity,
+                            fig_toes, ges_logs, level_of, plot_territories, specialist_gaits)
 from report.strip import motion_strip
-from report.tables import (GAIT_FEATURES, report_claims, report_cost, report_figures, report_ges_runs, report_header,
-                           report_ksens, report_table1, report_table2, report_table3, report_territories,
-                           report_wall)
-from runkit.clock import StageClock, stage_times
-from runkit.files import FRESH, READ_ERRORS, BadInput, read_back, read_json, redo_if_damaged, write_json
-from runkit.folder import check_ours, check_output, git_commit, open_output
-from runkit.logs import read_log, train_seconds, training_rate, trim_log
-from runkit.plan import (CALIBRATION_FILE, CALIBRATION_STEPS, Layout, calibrate, calibration_for, measure_rates,
-                         plan_seconds, plan_text, rates_text)
-from runkit.pool import (GatedExecutor, StopBy, clock_text, close_dask_clients, dask_client, dask_executor,
-                         exit_with_parent, side_by_side, stop_time)
-from runkit.progress import Progress, Throttled, eta_s, round_eta, run_eta, say
+from report.tables import (report_claims, report_cost, report_figures, report_ges_runs, report_header, report_ksens,
+                           report_table1, report_table2, report_table3, report_territories, report_wall)
+from runkit import cli
+from runkit.cli import Experiment, calibration, kill_hook, stage_result
+from runkit.clock import stage_times
+from runkit.files import FRESH, READ_ERRORS, read_back, read_json, redo_if_damaged, write_json
+from runkit.folder import git_commit
+from runkit.logs import train_seconds, training_rate, trim_log
+from runkit.plan import Layout, job_rates, plan_seconds
+from runkit.pool import executor, side_by_side
+from runkit.progress import Progress, Throttled, eta_s, round_eta, say
 from runkit.stats import wins
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -408,7 +404,7 @@ LAYOUT = Layout(tasks=len(TASKS), spaces=len(SPACES), e2e=len(E2E), methods=len(
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 3. Stages (each a function; each name usable with --only)
+# 3. Stages (each a function; each name usable with --only), in the order a run runs them; their jobs: section 4
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class Run:
@@ -439,16 +435,10 @@ class Run:
 
     def pool(self):
         """The executor of independent jobs (trainings, GES specialists' rounds, score sets, TPE searches): a Dask
-        cluster's, a process pool (spawn: the parent holds torch threads), or inline with 1 worker. Every job runs
-        its env in its own process (workers=1 inside), so any executor gives the same numbers."""
-        if self.executor == "dask":
-            ex = dask_executor(cluster(self.scheduler, self.workers))
-        elif self.workers <= 1:
-            ex = ges.SerialExecutor()
-        else:
-            ex = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
-                                     initargs=(os.getpid(),))
-        return ex if self.stop_by is None else GatedExecutor(ex, self.stop_by)
+        cluster's, a process pool, or inline with 1 worker (runkit.pool.executor). Every job runs its env in its
+        own process (workers=1 inside), so any executor gives the same numbers."""
+        return executor(self.executor, self.workers, self.scheduler, [os.path.join(HERE, f) for f in PROJECT_FILES],
+                        self.stop_by, ges.SerialExecutor)
 
 
 # --- Table I ------------------------------------------------------------------------------------------------
@@ -461,6 +451,225 @@ def stage_table1(run: Run) -> dict:
 
 
 # --- baselines ----------------------------------------------------------------------------------------------
+def stage_baselines(run: Run) -> dict:
+    """Train every non-GES policy with the same per-policy budget (ppo_steps). With several workers, one policy
+    per worker, each stepping its lanes in its own process. Each policy always steps in-process, so --workers
+    does not change it."""
+    jobs = baseline_jobs(run)
+    prog, out = Progress("policies", len(jobs), every=0, parallel=run.workers), {}
+    ex = run.pool()
+    try:
+        futures = [ex.submit(train_baseline, run, *job) for job in jobs]
+        for i, ((name, *_), fut) in enumerate(zip(jobs, futures)):
+            ckpt = fut.result()
+            out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
+                         "seconds": train_seconds(os.path.join(os.path.dirname(ckpt), "log.csv"))}
+            kill_hook(f"baselines:{name}")
+            prog(i + 1, name)
+    finally:
+        ex.shutdown(wait=True, cancel_futures=True)
+    return out
+
+
+# --- GES ----------------------------------------------------------------------------------------------------
+def stage_ges(run: Run) -> dict:
+    """GES stage 1 for obstacle/ramp x D2/D3 with the paper's default init (FPS + Lloyd)."""
+    return ges_runs(run, [(t, s, run.K(s), "fps+lloyd") for t in TASKS for s in SPACES], "GES runs")
+
+
+# --- the step-matched e2e MLP [ours; the paper has no such control] -----------------------------------------
+MATCHED = "mlp_matched"   # the step-matched e2e MLP's method name (policies/, scores/, results)
+
+
+def stage_matched(run: Run) -> dict:
+    """Each cell's step-matched e2e MLP [ours; the paper has no such control]: the cell's e2e MLP (its scored
+    checkpoint, optimiser included: what GES's specialists warm-start from) trained on for the steps one of the
+    cell's main GES specialists trains (Preset.ges_steps of its rounds). With ges_warm_start (quick, overnight)
+    it ends at each specialist's steps; without, it is the e2e MLP given a specialist's steps more."""
+    ges_res, out = stage_result(run, "ges"), {}
+    jobs = []
+    for t in TASKS:
+        for s in SPACES:
+            warm = ppo.scored_path(policy_ckpt(run, f"mlp-{t}-{s}"), run.preset.policy_rule)
+            steps = ckpt_steps(warm) + run.preset.ges_steps(ges_res[run.main_ges(t, s)]["rounds"])
+            jobs.append(MatchedJob(run.out, run.preset, run.seed, t, s, MATCHED, steps))
+    prog = Progress("step-matched e2e MLPs", len(jobs), every=0, parallel=run.workers)
+    with run.pool() as ex:
+        futures = [ex.submit(job) for job in jobs]
+        for i, (job, fut) in enumerate(zip(jobs, futures)):
+            sc = np.array(fut.result())
+            out[f"{job.task}-{job.sp}"] = {"steps": job.steps, **summary(sc)}
+            prog(i + 1, f"{job.task} {job.sp}: mean {sc.mean():.2f}")
+    return out
+
+
+# --- Table II -----------------------------------------------------------------------------------------------
+def stage_table2(run: Run) -> dict:
+    """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
+    out = {"design": {}, "cells": {}}
+    # the "baseline design" column: the baseline policy at the baseline design; then every method's test set
+    design = [ScoreSet(run.out, run.preset, run.seed, t, "d2", "design") for t in TASKS]
+    units = [ScoreSet(run.out, run.preset, run.seed, t, s, m, run.main_ges(t, s) if m == "ges" else None)
+             for t in TASKS for s in SPACES for m in METHODS]
+    scores = score_sets(run, design + units, "score sets")
+    for job in design:
+        out["design"][job.task] = float(scores[job.key][0])
+    for job in units:
+        sc = scores[job.key]
+        out["cells"].setdefault(f"{job.task}-{job.sp}", {})[job.method] = {
+            "mean": float(sc.mean()), "std": float(sc.std()), "min": float(sc.min()), "max": float(sc.max()),
+            "scores": sc.tolist()}
+    for key, cell in out["cells"].items():
+        g = np.array(cell["ges"]["scores"])
+        cell["ges_wins"] = {m: wins(g, np.array(cell[m]["scores"])) for m in ("baseline", "mlp", "moe")}
+    specs = [SearchSpec(run.out, run.preset, run.seed, t, s, m) for t in TASKS for s in SPACES
+             for m in SEARCHED]
+    out["peaks"] = run_searches(run, specs)
+    write_test_csv(run, out)
+    return out
+
+
+# --- Table III and K sensitivity ----------------------------------------------------------------------------
+def stage_table3(run: Run) -> dict:
+    """Table III: GES (K = K_d2, obstacle, D2) with each centre initialisation; the FPS + Lloyd run is the
+    ges stage's run (same directory), so it is not trained twice."""
+    specs = [("obstacle", "d2", run.K("d2"), init) for init in run.preset.table3_inits]
+    runs = ges_runs(run, specs, "Table III GES runs")
+    names = [ges_name(*sp) for sp in specs]
+    scores = ges_test_scores(run, names, "Table III score sets")
+    return {init: dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"])
+            for init, n in zip(run.preset.table3_inits, names)}
+
+
+def stage_ksens(run: Run) -> dict:
+    """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run. With
+    ksens_auto also adaptive K (key "auto", its final K beside it)."""
+    Ks = list(run.preset.ksens_K) + ["auto"] * run.preset.ksens_auto
+    specs = [("obstacle", "d2", K, "fps+lloyd") for K in Ks]
+    runs = ges_runs(run, specs, "K-sensitivity GES runs")
+    names = [ges_name(*sp) for sp in specs]
+    scores = ges_test_scores(run, names, "K-sensitivity score sets")
+    return {str(K): dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"],
+                         **({"final_K": runs[n]["final_K"]} if K == "auto" else {})) for K, n in zip(Ks, names)}
+
+
+# --- computational cost -------------------------------------------------------------------------------------
+def stage_cost(run: Run) -> dict:
+    """GES co-design (stage 1 + TPE with the router) vs per-design BO (TPE, a fresh PPO policy per trial), same
+    machine, same trial count, on the preset's cost task/space (paper: 3D). If cost_trials < tpe_trials, BO's
+    cost is the measured mean per trial x tpe_trials (said so in the report).
+
+    Both sides are counted in core-seconds under one layout [ours]: every job (a policy's training,
+    a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
+    once as there are workers, and is timed where it runs (a training that a kill split: every attempt, by
+    train_seconds). The paper compares wall hours on its machine; with jobs of unequal width (a BO trial stepping
+    its env on both cores, GES's jobs sharing them) wall times would compare layouts, not methods. BO's
+    startup trials are random draws independent of each other, so they run `workers` at a time
+    (tpe.startup_batch: the same trials as one at a time)."""
+    p = run.preset
+    t, s = p.cost_task, p.cost_space
+    space = space_of(p, t, s)
+    ges_summary = stage_result(run, "ges")[run.main_ges(t, s)]
+    router = stage_result(run, "table2")["peaks"][f"{t}-{s}-ges"]
+
+    os.makedirs(run.path("tpe"), exist_ok=True)
+
+    def after(study, trial):
+        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} "
+            f"({bo.trial_seconds(trial):.0f}s)")
+        kill_hook(f"cost:trial{trial.index}")
+
+    bo = PerDesignBO(run, t, space)
+    with run.pool() as ex:
+        study = tpe.optimize(bo, space.lo, space.hi, p.cost_trials,
+                             seed=derive_seed(run.seed, "tpe", t, s),
+                             config=tpe.TPEConfig(direction="maximize", n_startup=p.tpe_startup),
+                             path=run.path("tpe", f"{t}-{s}-per-design-bo.json"), names=list(space.names),
+                             callback=after, verbose=False, executor=ex, parallel=max(1, run.workers))
+    bo_trial_s = [bo.trial_seconds(tr) for tr in study.trials]
+    bo_measured = float(sum(bo_trial_s))
+    bo_total = bo_measured / len(study.trials) * p.tpe_trials
+    # with ges_warm_start the e2e MLP the specialists start from is part of GES's cost
+    warm_s = stage_result(run, "baselines")[f"mlp-{t}-{s}"]["seconds"] if p.ges_warm_start else 0.0
+    stage1 = ges_summary["stage1_core_s"]
+    ges_total = warm_s + stage1 + router["seconds"]
+    ges_per_trial = router["seconds"] / max(1, router["trials"])
+    return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
+            "bo_trial_s": bo_trial_s, "ges_fixed_s": warm_s + stage1,
+            "ges_per_trial_s": ges_per_trial,
+            "extrapolated": len(study.trials) < p.tpe_trials, "bo_measured_s": bo_measured, "bo_s": bo_total,
+            "ges_warm_start_s": warm_s, "ges_stage1_s": stage1, "ges_tpe_s": router["seconds"], "ges_s": ges_total,
+            "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
+            "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"],
+            "unit": "core-s"}
+
+
+# --- figures (report/figures.py draws them) -----------------------------------------------------------------
+def stage_figures(run: Run) -> dict:
+    """Every figure, drawn by report/figures.py from this run's numbers and policies: Figs. 1, 3-8 and the learning
+    curves of every trained policy."""
+    t2, ks = stage_result(run, "table2"), stage_result(run, "ksens")
+    fdir = run.path("figures")
+    os.makedirs(fdir, exist_ok=True)
+    figs = {"fig3": fig_distributions(t2["cells"], TASKS, SPACES, METHODS, UNIT, {s: run.K(s) for s in SPACES},
+                                      os.path.join(fdir, "fig3_distributions.png"))}
+    space = space_of(run.preset, "obstacle", "d3")   # Fig. 4: 10 designs from distinct regions of obstacle D3
+    figs["fig4"], ent, gate, ks_routed = fig_experts(
+        load_policy(run, "moe", "obstacle", "d3"), load_ges(run.path("ges", run.main_ges("obstacle", "d3"))), space,
+        distinct_designs(space, 10, derive_seed(run.seed, "fig4")), "obstacle, D3",
+        os.path.join(fdir, "fig4_expert_contributions.png"))
+    space, peak = space_of(run.preset, "obstacle", "d2"), t2["peaks"]["obstacle-d2-ges"]["peak_design"]
+    experts = lambda: [load_ges_ckpt(c, run.preset)   # noqa: E731  obstacle D2's specialists (Fig. 5)
+                       for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
+    figs["fig5"] = fig_toes(experts(), space.full([peak[n] for n in space.names]),
+                            os.path.join(fdir, "fig5_toe_heights.png"), run.preset.episode_steps)
+    gaits = specialist_gaits(experts(), space, derive_seed(run.seed, "gaits"), steps=run.preset.episode_steps)
+    for t in TASKS:
+        for s in SPACES:
+            name = run.main_ges(t, s)
+            figs[f"fig6-{t}-{s}"] = plot_territories(load_ges(run.path("ges", name)).history,
+                                                      os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
+    figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
+    figs["fig8"] = fig_sensitivity([(t, space_of(run.preset, t, "d2"), run.test_designs(t, "d2"),
+                                     t2["cells"][f"{t}-d2"]["ges"]["scores"], UNIT[t]) for t in TASKS],
+                                   os.path.join(fdir, "fig8_design_sensitivity.png"))
+    for t in TASKS:   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level
+        s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
+        pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
+        theta = [pk["peak_design"][n] for n in space.names]
+        policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta, run.preset)
+        figs[f"fig1-{t}"] = motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
+                                         level_of(t, pk["peak"]), space.full(theta)[0])
+    cdir = os.path.join(fdir, "curves")
+    os.makedirs(cdir, exist_ok=True)
+    for t in TASKS:
+        logs = [("baseline design", [run.path("policies", f"baseline-{t}", "log.csv")])]
+        logs += [(f"{m} {s}", [run.path("policies", f"{m}-{t}-{s}", "log.csv")])
+                 for s in SPACES for m in E2E]
+        figs[f"curves-e2e-{t}"] = fig_curves(logs, os.path.join(cdir, f"e2e_{t}.png"),
+                                             f"{t}: baseline-design policy, e2e MLP and MoE")
+    for name in sorted(os.listdir(run.path("ges"))):
+        figs[f"curves-ges-{name}"] = fig_curves(ges_logs(run.path("ges", name)), os.path.join(cdir, f"ges_{name}.png"),
+                                                f"GES {name}: specialists (rounds concatenated)")
+    bo = run.path("policies", "bo")
+    if os.path.isdir(bo):
+        figs["curves-bo"] = fig_curves([(n, [os.path.join(bo, n, "log.csv")]) for n in sorted(os.listdir(bo))],
+                                       os.path.join(cdir, "per_design_bo.png"), "per-design BO: one policy per trial")
+    return {"files": {k: os.path.relpath(v, run.out) for k, v in figs.items()}, "moe_gate_entropy": ent,
+            "moe_gate_weights": gate, "ges_routes": ks_routed, "specialist_gaits": gaits}
+
+
+STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges": (stage_ges, ()),
+          "matched": (stage_matched, ("baselines", "ges")),
+          "table2": (stage_table2, ("baselines", "ges")), "table3": (stage_table3, ("ges", "table2")),
+          "ksens": (stage_ksens, ("ges", "table2")), "cost": (stage_cost, ("ges", "table2")),
+          "figures": (stage_figures, ("table2", "table3", "ksens"))}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 4. The stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches, per-design BO
+# ----------------------------------------------------------------------------------------------------------
+# --- policies -----------------------------------------------------------------------------------------------
 def policy_ckpt(run: Run, name: str) -> str:
     return run.path("policies", name, "policy.pt")
 
@@ -483,27 +692,7 @@ def train_baseline(run: Run, name: str, kind: str, task: str, sampler) -> str:
                         derive_seed(run.seed, "ppo", name), name)
 
 
-def stage_baselines(run: Run) -> dict:
-    """Train every non-GES policy with the same per-policy budget (ppo_steps). With several workers, one policy
-    per worker, each stepping its lanes in its own process. Each policy always steps in-process, so --workers
-    does not change it."""
-    jobs = baseline_jobs(run)
-    prog, out = Progress("policies", len(jobs), every=0, parallel=run.workers), {}
-    ex = run.pool()
-    try:
-        futures = [ex.submit(train_baseline, run, *job) for job in jobs]
-        for i, ((name, *_), fut) in enumerate(zip(jobs, futures)):
-            ckpt = fut.result()
-            out[name] = {"ckpt": os.path.relpath(ckpt, run.out), "steps": ppo.load_checkpoint(ckpt)["steps"],
-                         "seconds": train_seconds(os.path.join(os.path.dirname(ckpt), "log.csv"))}
-            kill_hook(f"baselines:{name}")
-            prog(i + 1, name)
-    finally:
-        ex.shutdown(wait=True, cancel_futures=True)
-    return out
-
-
-# --- GES ----------------------------------------------------------------------------------------------------
+# --- GES runs -----------------------------------------------------------------------------------------------
 def ges_name(task: str, sp: str, K: int | str, init: str) -> str:
     return f"{task}-{sp}-K{K}-{init.replace('+', '-')}"   # K "auto": adaptive K (Preset.ksens_auto)
 
@@ -571,12 +760,7 @@ def ges_runs(run: Run, specs: list, label: str) -> dict:
         return side_by_side(jobs, Progress(label, len(specs), every=0), isinstance(ex, ges.SerialExecutor))
 
 
-def stage_ges(run: Run) -> dict:
-    """GES stage 1 for obstacle/ramp x D2/D3 with the paper's default init (FPS + Lloyd)."""
-    return ges_runs(run, [(t, s, run.K(s), "fps+lloyd") for t in TASKS for s in SPACES], "GES runs")
-
-
-# --- Table II -----------------------------------------------------------------------------------------------
+# --- score sets of the test designs -------------------------------------------------------------------------
 def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = None) -> str:
     """Name of a score set; a GES score set is named by its GES run, so Table II, Table III (FPS + Lloyd) and
     Fig. 7 (K = K_d2) share the main obstacle D2 run's scores instead of scoring it three times."""
@@ -649,7 +833,33 @@ def score_sets(run: Run, jobs: list, label: str) -> dict:
     return out
 
 
-# --- the step-matched e2e MLP [ours; the paper has no such control] -------------------------------------------
+def write_test_csv(run: Run, t2: dict) -> None:
+    """test_scores.csv: one row per test design with every method's score (the raw numbers of Table II)."""
+    with open(run.path("test_scores.csv"), "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["task", "space", "l_f", "l_t", "gcr", "spcf"] + list(METHODS))
+        for t in TASKS:
+            for s in SPACES:
+                full = space_of(run.preset, t, s).full(run.test_designs(t, s))
+                cell = t2["cells"][f"{t}-{s}"]
+                for j, d in enumerate(full):
+                    w.writerow([t, s] + [f"{v:.6g}" for v in d] + [cell[m]["scores"][j] for m in METHODS])
+
+
+def ges_test_scores(run: Run, names: list, label: str) -> dict:
+    """GES runs' routed scores on the obstacle D2 test designs (shared with Table II), one executor job each:
+    run name -> scores."""
+    jobs = [ScoreSet(run.out, run.preset, run.seed, "obstacle", "d2", "ges", n) for n in names]
+    scores = score_sets(run, jobs, label)
+    return {n: scores[job.key] for n, job in zip(names, jobs)}
+
+
+def summary(s: np.ndarray) -> dict:
+    return {"mean": float(s.mean()), "min": float(s.min()), "max": float(s.max()), "std": float(s.std()),
+            "scores": s.tolist()}
+
+
+# --- the step-matched e2e MLP -------------------------------------------------------------------------------
 @dataclass
 class MatchedJob(CellJob):
     """The cell's e2e MLP trained on, on the same uniform designs, to `steps` (stage_matched): is GES's lead
@@ -666,31 +876,7 @@ class MatchedJob(CellJob):
         return ScoreSet(self.out, self.preset, self.seed, self.task, self.sp, MATCHED)()
 
 
-MATCHED = "mlp_matched"   # the step-matched e2e MLP's method name (policies/, scores/, results)
-
-
-def stage_matched(run: Run) -> dict:
-    """Each cell's step-matched e2e MLP [ours; the paper has no such control]: the cell's e2e MLP (its scored
-    checkpoint, optimiser included: what GES's specialists warm-start from) trained on for the steps one of the
-    cell's main GES specialists trains (Preset.ges_steps of its rounds). With ges_warm_start (quick, overnight)
-    it ends at each specialist's steps; without, it is the e2e MLP given a specialist's steps more."""
-    ges_res, out = stage_result(run, "ges"), {}
-    jobs = []
-    for t in TASKS:
-        for s in SPACES:
-            warm = ppo.scored_path(policy_ckpt(run, f"mlp-{t}-{s}"), run.preset.policy_rule)
-            steps = ckpt_steps(warm) + run.preset.ges_steps(ges_res[run.main_ges(t, s)]["rounds"])
-            jobs.append(MatchedJob(run.out, run.preset, run.seed, t, s, MATCHED, steps))
-    prog = Progress("step-matched e2e MLPs", len(jobs), every=0, parallel=run.workers)
-    with run.pool() as ex:
-        futures = [ex.submit(job) for job in jobs]
-        for i, (job, fut) in enumerate(zip(jobs, futures)):
-            sc = np.array(fut.result())
-            out[f"{job.task}-{job.sp}"] = {"steps": job.steps, **summary(sc)}
-            prog(i + 1, f"{job.task} {job.sp}: mean {sc.mean():.2f}")
-    return out
-
-
+# --- TPE design searches ------------------------------------------------------------------------------------
 @dataclass
 class SearchSpec(CellJob):
     """One TPE design search maximising a method's J(theta)."""
@@ -742,82 +928,7 @@ def run_searches(run: Run, specs: list) -> dict:
     return out
 
 
-def stage_table2(run: Run) -> dict:
-    """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
-    out = {"design": {}, "cells": {}}
-    # the "baseline design" column: the baseline policy at the baseline design; then every method's test set
-    design = [ScoreSet(run.out, run.preset, run.seed, t, "d2", "design") for t in TASKS]
-    units = [ScoreSet(run.out, run.preset, run.seed, t, s, m, run.main_ges(t, s) if m == "ges" else None)
-             for t in TASKS for s in SPACES for m in METHODS]
-    scores = score_sets(run, design + units, "score sets")
-    for job in design:
-        out["design"][job.task] = float(scores[job.key][0])
-    for job in units:
-        sc = scores[job.key]
-        out["cells"].setdefault(f"{job.task}-{job.sp}", {})[job.method] = {
-            "mean": float(sc.mean()), "std": float(sc.std()), "min": float(sc.min()), "max": float(sc.max()),
-            "scores": sc.tolist()}
-    for key, cell in out["cells"].items():
-        g = np.array(cell["ges"]["scores"])
-        cell["ges_wins"] = {m: wins(g, np.array(cell[m]["scores"])) for m in ("baseline", "mlp", "moe")}
-    specs = [SearchSpec(run.out, run.preset, run.seed, t, s, m) for t in TASKS for s in SPACES
-             for m in SEARCHED]
-    out["peaks"] = run_searches(run, specs)
-    write_test_csv(run, out)
-    return out
-
-
-def write_test_csv(run: Run, t2: dict) -> None:
-    """test_scores.csv: one row per test design with every method's score (the raw numbers of Table II)."""
-    with open(run.path("test_scores.csv"), "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["task", "space", "l_f", "l_t", "gcr", "spcf"] + list(METHODS))
-        for t in TASKS:
-            for s in SPACES:
-                full = space_of(run.preset, t, s).full(run.test_designs(t, s))
-                cell = t2["cells"][f"{t}-{s}"]
-                for j, d in enumerate(full):
-                    w.writerow([t, s] + [f"{v:.6g}" for v in d] + [cell[m]["scores"][j] for m in METHODS])
-
-
-# --- Table III and K sensitivity ----------------------------------------------------------------------------
-def ges_test_scores(run: Run, names: list, label: str) -> dict:
-    """GES runs' routed scores on the obstacle D2 test designs (shared with Table II), one executor job each:
-    run name -> scores."""
-    jobs = [ScoreSet(run.out, run.preset, run.seed, "obstacle", "d2", "ges", n) for n in names]
-    scores = score_sets(run, jobs, label)
-    return {n: scores[job.key] for n, job in zip(names, jobs)}
-
-
-def summary(s: np.ndarray) -> dict:
-    return {"mean": float(s.mean()), "min": float(s.min()), "max": float(s.max()), "std": float(s.std()),
-            "scores": s.tolist()}
-
-
-def stage_table3(run: Run) -> dict:
-    """Table III: GES (K = K_d2, obstacle, D2) with each centre initialisation; the FPS + Lloyd run is the
-    ges stage's run (same directory), so it is not trained twice."""
-    specs = [("obstacle", "d2", run.K("d2"), init) for init in run.preset.table3_inits]
-    runs = ges_runs(run, specs, "Table III GES runs")
-    names = [ges_name(*sp) for sp in specs]
-    scores = ges_test_scores(run, names, "Table III score sets")
-    return {init: dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"])
-            for init, n in zip(run.preset.table3_inits, names)}
-
-
-def stage_ksens(run: Run) -> dict:
-    """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run. With
-    ksens_auto also adaptive K (key "auto", its final K beside it)."""
-    Ks = list(run.preset.ksens_K) + ["auto"] * run.preset.ksens_auto
-    specs = [("obstacle", "d2", K, "fps+lloyd") for K in Ks]
-    runs = ges_runs(run, specs, "K-sensitivity GES runs")
-    names = [ges_name(*sp) for sp in specs]
-    scores = ges_test_scores(run, names, "K-sensitivity score sets")
-    return {str(K): dict(summary(scores[n]), rounds=runs[n]["rounds"], coverage=runs[n]["coverage"],
-                         **({"final_K": runs[n]["final_K"]} if K == "auto" else {})) for K, n in zip(Ks, names)}
-
-
-# --- computational cost -------------------------------------------------------------------------------------
+# --- per-design BO ------------------------------------------------------------------------------------------
 @dataclass
 class PerDesignBO:
     """The cost baseline's objective: every TPE trial trains a fresh PPO policy on its one design with the
@@ -856,269 +967,9 @@ class PerDesignBO:
             return float(trial.seconds or 0.0)
 
 
-def stage_cost(run: Run) -> dict:
-    """GES co-design (stage 1 + TPE with the router) vs per-design BO (TPE, a fresh PPO policy per trial), same
-    machine, same trial count, on the preset's cost task/space (paper: 3D). If cost_trials < tpe_trials, BO's
-    cost is the measured mean per trial x tpe_trials (said so in the report).
-
-    Both sides are counted in core-seconds under one layout [ours]: every job (a policy's training,
-    a specialist's train or probe task, a TPE search, a BO trial) runs in one process on one core, as many at
-    once as there are workers, and is timed where it runs (a training that a kill split: every attempt, by
-    train_seconds). The paper compares wall hours on its machine; with jobs of unequal width (a BO trial stepping
-    its env on both cores, GES's jobs sharing them) wall times would compare layouts, not methods. BO's
-    startup trials are random draws independent of each other, so they run `workers` at a time
-    (tpe.startup_batch: the same trials as one at a time)."""
-    p = run.preset
-    t, s = p.cost_task, p.cost_space
-    space = space_of(p, t, s)
-    ges_summary = stage_result(run, "ges")[run.main_ges(t, s)]
-    router = stage_result(run, "table2")["peaks"][f"{t}-{s}-ges"]
-
-    os.makedirs(run.path("tpe"), exist_ok=True)
-
-    def after(study, trial):
-        say(f"  per-design BO trial {len(study.trials)}/{p.cost_trials} y={fmt_y(trial.y)} "
-            f"({bo.trial_seconds(trial):.0f}s)")
-        kill_hook(f"cost:trial{trial.index}")
-
-    bo = PerDesignBO(run, t, space)
-    with run.pool() as ex:
-        study = tpe.optimize(bo, space.lo, space.hi, p.cost_trials,
-                             seed=derive_seed(run.seed, "tpe", t, s),
-                             config=tpe.TPEConfig(direction="maximize", n_startup=p.tpe_startup),
-                             path=run.path("tpe", f"{t}-{s}-per-design-bo.json"), names=list(space.names),
-                             callback=after, verbose=False, executor=ex, parallel=max(1, run.workers))
-    bo_trial_s = [bo.trial_seconds(tr) for tr in study.trials]
-    bo_measured = float(sum(bo_trial_s))
-    bo_total = bo_measured / len(study.trials) * p.tpe_trials
-    # with ges_warm_start the e2e MLP the specialists start from is part of GES's cost
-    warm_s = stage_result(run, "baselines")[f"mlp-{t}-{s}"]["seconds"] if p.ges_warm_start else 0.0
-    stage1 = ges_summary["stage1_core_s"]
-    ges_total = warm_s + stage1 + router["seconds"]
-    ges_per_trial = router["seconds"] / max(1, router["trials"])
-    return {"task": t, "space": s, "trials": p.tpe_trials, "bo_trials_run": len(study.trials),
-            "bo_trial_s": bo_trial_s, "ges_fixed_s": warm_s + stage1,
-            "ges_per_trial_s": ges_per_trial,
-            "extrapolated": len(study.trials) < p.tpe_trials, "bo_measured_s": bo_measured, "bo_s": bo_total,
-            "ges_warm_start_s": warm_s, "ges_stage1_s": stage1, "ges_tpe_s": router["seconds"], "ges_s": ges_total,
-            "reduction_pct": 100.0 * (1.0 - ges_total / bo_total), "bo_peak": study.best.y,
-            "bo_peak_design": dict(zip(space.names, study.best.x.tolist())), "ges_peak": router["peak"],
-            "unit": "core-s"}
-
-
-# ----------------------------------------------------------------------------------------------------------
-# 4. Figures
-# ----------------------------------------------------------------------------------------------------------
-def fig_distributions(run: Run, t2: dict, path: str) -> str:
-    """Fig. 3: score distribution per method on the test designs, per task and space; paper means as red x."""
-    plt = _plt()
-    fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
-    for i, t in enumerate(TASKS):
-        for j, s in enumerate(SPACES):
-            ax, cell = axes[i, j], t2["cells"][f"{t}-{s}"]
-            data = [cell[m]["scores"] for m in METHODS]
-            ax.boxplot(data, showmeans=True, meanprops=dict(marker="o", mfc="k", mec="k", ms=5))
-            for k, m in enumerate(METHODS):
-                jitter = np.random.default_rng(k).uniform(-0.12, 0.12, len(data[k]))
-                ax.plot(k + 1 + jitter, data[k], ".", alpha=0.35, color="C0")
-                paper = PAPER_TABLE2[(t, s)].get(m)
-                if paper is not None:
-                    ax.plot(k + 1, paper, "rx", ms=9, mew=2)
-            ax.set_xticks(range(1, len(METHODS) + 1), [METHOD_NAMES[m] for m in METHODS], fontsize=8)
-            ax.set_ylabel(f"J [{UNIT[t]}]")
-            ax.set_title(f"{t}, {s.upper()} (K={run.K(s)}), {len(data[0])} test designs", fontsize=10)
-    fig.suptitle("Fig. 3: performance distributions (box; black dot = our mean; red x = paper mean)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def distinct_designs(space: ballu.DesignSpace, n: int, seed: int) -> np.ndarray:
-    """n designs from distinct regions: farthest point sampling on a uniform pool (as GES's own init)."""
-    rng = np.random.default_rng(seed)
-    pts = ges.farthest_point_sampling(rng.random((2000, space.d)), n, rng)
-    return ges.Box.of(space).from_unit(pts[np.lexsort(pts.T[::-1])])
-
-
-def fig_experts(run: Run, path: str) -> tuple:
-    """Fig. 4: expert contributions on 10 designs from distinct regions: the e2e MoE's soft gate weights vs
-    GES's density router (a hard choice), obstacle D3 (6 experts each); gate entropy normalised by log K."""
-    plt = _plt()
-    t, s = "obstacle", "d3"
-    space = space_of(run.preset, t, s)
-    theta = distinct_designs(space, 10, derive_seed(run.seed, "fig4"))
-    full = space.full(theta)
-    gate = load_policy(run, "moe", t, s).gate_weights(ballu.normalise_design(full).astype(np.float32))
-    res = load_ges(run.path("ges", run.main_ges(t, s)))
-    ks = res.route(theta)
-    hard = np.eye(len(res.ckpt))[ks]
-    ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4), layout="constrained")
-    labels = [" ".join(f"{v:.3g}" for v in row) for row in theta]
-    for ax, w, title in ((axes[0], gate, f"e2e MoE gate weights (normalised entropy {ent:.2f})"),
-                         (axes[1], hard, "GES density router (entropy 0)")):
-        im = ax.imshow(w, vmin=0, vmax=1, cmap="viridis", aspect="auto")
-        ax.set_yticks(range(len(labels)), labels if ax is axes[0] else [""] * len(labels), fontsize=7)
-        ax.set_xticks(range(w.shape[1]), [f"E{k}" for k in range(w.shape[1])])
-        ax.set_xlabel("expert / specialist")
-        ax.set_title(title, fontsize=10)
-        for (a, b), v in np.ndenumerate(w):
-            ax.text(b, a, f"{v:.2f}", ha="center", va="center", fontsize=6, color="w" if v < 0.5 else "k")
-    axes[0].set_ylabel(" ".join(space.names))
-    fig.colorbar(im, ax=axes, shrink=0.8)
-    fig.suptitle(f"Fig. 4: expert contributions on 10 distinct designs ({t}, {s.upper()})")
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path, ent, gate.tolist(), ks.tolist()
-
-
-GAIT_DESIGNS = 8   # [ours] common designs on which every specialist's gait is measured (Fig. 5's claim)
-
-
-def specialist_gaits(run: Run, task: str = "obstacle", sp: str = "d2", level: int = 30) -> dict:
-    """Fig. 5's claim as a number: every specialist of a GES run plays one episode on the same GAIT_DESIGNS
-    designs (seeded uniform) facing the level-30 obstacle; per gait feature, a Friedman test (designs as blocks)
-    of whether the specialists differ. 'Specialists behave differently' is supported if some feature differs at
-    p < 0.05 / len(GAIT_FEATURES) (Bonferroni). Needs K >= 3 (Friedman)."""
-    from scipy.stats import friedmanchisquare
-    space = space_of(run.preset, task, sp)
-    designs = space.full(distinct_designs(space, GAIT_DESIGNS, derive_seed(run.seed, "gaits")))
-    experts = [load_ges_ckpt(c, run.preset) for c in load_ges(run.path("ges", run.main_ges(task, sp))).ckpt]
-    dt = ballu.BalluConfig().control_dt
-    steps = run.preset.episode_steps
-    feats = [[gait_features(toe_heights(e, d[None], task, level, steps), dt) for d in designs] for e in experts]
-    out = {"K": len(experts), "designs": len(designs), "features": {}}
-    for f in GAIT_FEATURES:
-        table = np.array([[g[f] for g in per_design] for per_design in feats])   # (K, designs)
-        same = np.all(table == table[0])
-        p = 1.0 if same or len(experts) < 3 else float(friedmanchisquare(*table).pvalue)
-        out["features"][f] = {"mean": table.mean(axis=1).tolist(), "p": p}
-    return out
-
-
-def fig_toes(run: Run, t2: dict, path: str) -> str:
-    """Fig. 5: toe heights of the K specialists of obstacle D2 on one design (the GES peak) at a 30 cm obstacle
-    (level 30 = 30.1 cm) at x = 0.5 m."""
-    plt = _plt()
-    space = space_of(run.preset, "obstacle", "d2")
-    peak = t2["peaks"]["obstacle-d2-ges"]["peak_design"]
-    full = space.full([peak[n] for n in space.names])
-    experts = [load_ges_ckpt(c, run.preset) for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
-    fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
-    dt = ballu.BalluConfig().control_dt
-    for k, expert in enumerate(experts):
-        z = toe_heights(expert, full, steps=run.preset.episode_steps)
-        tt = np.arange(len(z)) * dt
-        for side in range(2):
-            axes[side].plot(tt, 100 * z[:, side], color=COLORS[k % len(COLORS)], label=f"specialist {k}")
-    for side, name in enumerate(("left", "right")):
-        axes[side].axhline(30.1, color="gray", ls="--", lw=1)
-        axes[side].set_ylabel(f"{name} toe z [cm]")
-    axes[1].set_xlabel("time [s]")
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"Fig. 5: toe heights of {len(experts)} GES specialists on design "
-                 f"{np.round(full[0], 4).tolist()} facing a 30 cm obstacle (dashed)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def fig_sensitivity(run: Run, t2: dict, path: str) -> str:
-    """Fig. 8: the GES score over D2 for both tasks, interpolated between the test designs (dots)."""
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, t in zip(axes, TASKS):
-        th = run.test_designs(t, "d2")
-        z = np.array(t2["cells"][f"{t}-d2"]["ges"]["scores"])
-        if len(z) >= 4 and np.ptp(z) > 0:
-            try:
-                cs = ax.tricontourf(th[:, 0], th[:, 1], z, levels=12, cmap="viridis")
-                fig.colorbar(cs, ax=ax, label=f"J [{UNIT[t]}]")
-            except (ValueError, RuntimeError):   # degenerate triangulation: dots only
-                pass
-        sc = ax.scatter(th[:, 0], th[:, 1], c=z, cmap="viridis", edgecolors="k", s=25)
-        if len(z) < 4 or np.ptp(z) == 0:
-            fig.colorbar(sc, ax=ax, label=f"J [{UNIT[t]}]")
-        space = space_of(run.preset, t, "d2")
-        ax.set(xlabel="GCR", ylabel="SPCF", xlim=(space.lo[0], space.hi[0]), ylim=(space.lo[1], space.hi[1]),
-               title=f"{t}: GES score over D2 ({len(z)} test designs)")
-    fig.suptitle("Fig. 8: design sensitivity of GES performance")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def ges_logs(run: Run, name: str) -> list:
-    """Each specialist's per-round CSVs, in round order (steps are cumulative across rounds); specialists by
-    the ids in the file names (adaptive K's challengers count on past K)."""
-    ck = run.path("ges", name, ges.CKPT_DIR)
-    files = [f for f in (sorted(os.listdir(ck)) if os.path.isdir(ck) else []) if f.endswith(".csv")]
-    ids = sorted({int(f[len("spec"):].split("_")[0]) for f in files if f.startswith("spec")})
-    return [(f"specialist {k}", [os.path.join(ck, f) for f in files if f.startswith(f"spec{k}_")]) for k in ids]
-
-
-def stage_figures(run: Run) -> dict:
-    """Every figure: Figs. 1, 3-8 and the learning curves of every trained policy."""
-    t2, ks = stage_result(run, "table2"), stage_result(run, "ksens")
-    fdir = run.path("figures")
-    os.makedirs(fdir, exist_ok=True)
-    figs = {"fig3": fig_distributions(run, t2, os.path.join(fdir, "fig3_distributions.png"))}
-    path, ent, gate, ks_routed = fig_experts(run, os.path.join(fdir, "fig4_expert_contributions.png"))
-    figs["fig4"] = path
-    figs["fig5"] = fig_toes(run, t2, os.path.join(fdir, "fig5_toe_heights.png"))
-    gaits = specialist_gaits(run)
-    for t in TASKS:
-        for s in SPACES:
-            name = run.main_ges(t, s)
-            figs[f"fig6-{t}-{s}"] = plot_territories(load_ges(run.path("ges", name)).history,
-                                                      os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
-    figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
-    figs["fig8"] = fig_sensitivity(run, t2, os.path.join(fdir, "fig8_design_sensitivity.png"))
-    for t in TASKS:   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level
-        s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
-        pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
-        theta = [pk["peak_design"][n] for n in space.names]
-        policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta, run.preset)
-        figs[f"fig1-{t}"] = motion_strip(os.path.join(fdir, f"fig1_strip_{t}.png"), policy, t,
-                                         level_of(t, pk["peak"]), space.full(theta)[0])
-    cdir = os.path.join(fdir, "curves")
-    os.makedirs(cdir, exist_ok=True)
-    for t in TASKS:
-        logs = [("baseline design", [run.path("policies", f"baseline-{t}", "log.csv")])]
-        logs += [(f"{m} {s}", [run.path("policies", f"{m}-{t}-{s}", "log.csv")])
-                 for s in SPACES for m in E2E]
-        figs[f"curves-e2e-{t}"] = fig_curves(logs, os.path.join(cdir, f"e2e_{t}.png"),
-                                             f"{t}: baseline-design policy, e2e MLP and MoE")
-    for name in sorted(os.listdir(run.path("ges"))):
-        figs[f"curves-ges-{name}"] = fig_curves(ges_logs(run, name), os.path.join(cdir, f"ges_{name}.png"),
-                                                f"GES {name}: specialists (rounds concatenated)")
-    bo = run.path("policies", "bo")
-    if os.path.isdir(bo):
-        figs["curves-bo"] = fig_curves([(n, [os.path.join(bo, n, "log.csv")]) for n in sorted(os.listdir(bo))],
-                                       os.path.join(cdir, "per_design_bo.png"), "per-design BO: one policy per trial")
-    return {"files": {k: os.path.relpath(v, run.out) for k, v in figs.items()}, "moe_gate_entropy": ent,
-            "moe_gate_weights": gate, "ges_routes": ks_routed, "specialist_gaits": gaits}
-
-
-STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges": (stage_ges, ()),
-          "matched": (stage_matched, ("baselines", "ges")),
-          "table2": (stage_table2, ("baselines", "ges")), "table3": (stage_table3, ("ges", "table2")),
-          "ksens": (stage_ksens, ("ges", "table2")), "cost": (stage_cost, ("ges", "table2")),
-          "figures": (stage_figures, ("table2", "table3", "ksens"))}
-
-
 # ----------------------------------------------------------------------------------------------------------
 # 5. REPORT.md and results.json: our numbers beside the paper's
 # ----------------------------------------------------------------------------------------------------------
-def stage_result(run: Run, name: str):
-    """A finished stage's result, None if it has not finished (repair moved a damaged one aside)."""
-    path = run.path("stages", f"{name}.json")
-    return read_back(path, stage_json, fix=f"delete it to redo stage {name}") if os.path.exists(path) else None
-
-
 def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
@@ -1133,7 +984,7 @@ def report(run: Run, manifest: dict) -> str:
     for name, write in sections:
         if results[name]:
             lines += write(results[name])
-    cal = calibration(run, measure=False)
+    cal = calibration(run)
     lines += report_wall(times, plan_seconds(run.preset, LAYOUT, max(1, run.workers), cal), STAGES,
                          f"python run_all.py --preset {run.preset.name} --plan --workers {run.workers} --out "
                          "<this folder>", training_rate(run.out), cal)
@@ -1147,7 +998,8 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. Machinery: seeds, work files, the files a Dask cluster gets, the job --rates times (runkit.plan)
+# 6. Machinery: seeds, work files and their repair, the files the code hash covers and a Dask cluster gets, the
+#    job --rates times (runkit.plan)
 # ----------------------------------------------------------------------------------------------------------
 def derive_seed(seed: int, *names) -> int:
     """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
@@ -1160,10 +1012,6 @@ def ckpt_steps(path: str) -> int:
     return int(ppo.load_checkpoint(path)["steps"])
 
 
-def stage_json(path: str):
-    return read_json(path)["result"]
-
-
 def score_set(path: str) -> np.ndarray:
     return np.array(read_json(path)["scores"], dtype=float)
 
@@ -1173,154 +1021,11 @@ def fmt_y(y) -> str:
     return "failed" if y is None else f"{y:.2f}"
 
 
-# this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
-PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")
-
-
-def cluster(scheduler: str | None, workers: int):
-    """The Dask client of this run (runkit.pool.dask_client), with this checkout's files to upload."""
-    return dask_client(scheduler, workers, [os.path.join(HERE, f) for f in PROJECT_FILES])
-
-
-def kill_hook(tag: str) -> None:
-    """Test hook: RUN_ALL_FAIL_AT=<tag> raises here, simulating a kill at that point of a stage."""
-    if os.environ.get("RUN_ALL_FAIL_AT") == tag:
-        raise RuntimeError(f"simulated kill at {tag}")
-
-
-def code_hash() -> str:
-    """Hash of the code that produces the numbers (simulator, PPO, GES, TPE) plus RESULTS_FORMAT: a results
-    folder made by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)"""
-    h = hashlib.sha256(str(RESULTS_FORMAT).encode())
-    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py"):   # lanes.py: score's workers
-        with open(os.path.join(HERE, name), "rb") as fh:
-            h.update(fh.read())
-    return h.hexdigest()[:16]
-
-
-def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps: int = 40_960,
-             n_designs: int = 3) -> tuple:
-    """One job of `--rates` or a calibration, as a stage runs it (in-process env, one core): train an e2e `kind`
-    on `task` D2 for `steps`, then J of that policy on `n_designs` uniform D2 designs. Returns (PPO steps/s over
-    the updates after the first, s per J, played score steps/s: the steps J actually simulated, replays excluded)."""
-    space = space_of(preset, task, "d2")
-    t0 = time.time()
-    ckpt = train_policy(os.path.join(folder, "policy.pt"), kind, task, ballu.UniformDesign(space), steps, preset, seed)
-    t1 = time.time()
-    designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
-    stats = {}
-    score_policy(ppo.load_policy(ppo.scored_path(ckpt, preset.policy_rule)), space.full(designs), task, preset, 1,
-                 stats=stats)
-    scored = time.time() - t1
-    played = stats["episodes_played"] * preset.env_config(ballu.BalluConfig()).episode_steps
-    rates = read_log(os.path.join(folder, "log.csv"))["steps_per_s"][1:]   # the first update also builds the env
-    train = len(rates) / np.sum(1.0 / rates) if len(rates) else steps / (t1 - t0)   # as REPORT.md's rate line
-    return train, scored / n_designs, played / scored
-
-
-def calibration(run: Run, measure: bool = True) -> dict | None:
-    """The rates this run is planned at (runkit.plan.calibrate): its folder's calibration, or one measured now
-    (< 60 s) and kept there, so `--plan` and the run it plans use one measurement. None (the plan's constants)
-    without `measure`, or for a preset whose policies train fewer steps than a calibration job (smoke): measuring
-    would cost more than the run trains."""
-    batch, path = (run.preset.ppo_envs, run.preset.ppo_rollout), run.path(CALIBRATION_FILE)
-    try:
-        cal = calibration_for(read_json(path) if os.path.exists(path) else None, run.workers, batch)
-    except (OSError, *READ_ERRORS):   # a damaged calibration is measured anew
-        cal = None
-    if cal or not measure or run.preset.ppo_steps < CALIBRATION_STEPS:
-        return cal
-    check_ours(run.out)   # somebody else's folder is refused before anything is written
-    say(f"calibrating the plan's rates on this machine: {run.workers} job(s) side by side, < 60 s")
-    job = functools.partial(rate_job, preset=run.preset, steps=CALIBRATION_STEPS, n_designs=1)
-    cal = calibrate(job, replace(run, stop_by=None).pool(), run.workers, batch)
-    os.makedirs(run.out, exist_ok=True)
-    write_json(path, cal)
-    say(f"calibrated: PPO {cal['train_rate']:.0f}, score {cal['score_rate']:.0f} control steps/s per job, in "
-        f"{cal['seconds']:.0f} s: {path}")
-    return cal
-
-
-# ----------------------------------------------------------------------------------------------------------
-# 7. Command line: check the arguments and the output folder, run the stages, write the report
-# ----------------------------------------------------------------------------------------------------------
-def parse(argv):
-    ap = argparse.ArgumentParser(description="Regenerate every table and figure of the GES paper.")
-    ap.add_argument("--preset", default="quick", choices=tuple(PRESETS), help="budgets (default: quick)")
-    ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "
-                    "--workers cores at this machine's rates: --out's calibration.json, or measured now (< 60 s) "
-                    "and kept there for the run; then exit")
-    ap.add_argument("--rates", action="store_true", help="measure the rates at length with the preset's batch: an "
-                    "e2e MLP and MoE on each task, --workers side by side, each training 40,960 PPO steps and "
-                    "scoring 3 designs (~4 min), beside the constants a run without calibration is planned at")
-    ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(STAGES)}")
-    ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--fresh", action="store_true", help="delete this run's earlier results and start over")
-    ap.add_argument("--stop-by", default=None, metavar="HH:MM",
-                    help="no job starts after this time of day (its next occurrence); jobs under way finish, then "
-                         "the run stops (exit 3); a rerun goes on with an uninterrupted run's numbers, as after a "
-                         "kill, but without redoing the work a kill cuts off (a training's updates since its last "
-                         "checkpoint, a score under way)")
-    ap.add_argument("--executor", default="process", choices=("process", "dask"),
-                    help="independent jobs on a local process pool (default) or a Dask cluster")
-    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="Dask scheduler, e.g. tcp://HOST:8786 (default with --executor dask: a local cluster "
-                         "of --workers processes)")
-    return ap.parse_args(argv)
-
-
-def check_args(args) -> tuple:
-    """Validate everything before anything is written; BadInput -> exit code 2."""
-    only = [s for s in args.only.split(",") if s] if args.only else list(STAGES)
-    bad = [s for s in only if s not in STAGES]
-    if bad:
-        raise BadInput(f"unknown stage(s) {bad} in --only; known: {','.join(STAGES)}")
-    if not only:
-        raise BadInput(f"--only {args.only!r} names no stage; known: {','.join(STAGES)}")
-    if args.seed < 0:
-        raise BadInput(f"--seed={args.seed} must be >= 0")
-    if args.scheduler and args.executor != "dask":
-        raise BadInput(f"--scheduler {args.scheduler} needs --executor dask")
-    if args.executor == "dask":
-        try:
-            import distributed  # noqa: F401
-        except ImportError:
-            raise BadInput("--executor dask needs the 'distributed' package (pip install distributed)") from None
-        if args.scheduler:
-            cluster(args.scheduler, args.workers)   # connect now: a wrong address fails before anything is written
-    return [s for s in STAGES if s in only]
-
-
-def stage_done(out: str, name: str) -> bool:
-    """A stage's result is there and readable (a damaged one is redone: repair)."""
-    path = os.path.join(out, "stages", f"{name}.json")
-    try:
-        return os.path.exists(path) and stage_json(path) is not None
-    except READ_ERRORS:
-        return False
-
-
-def check_needs(out: str, stages: list, reuse: bool) -> None:
-    """Each requested stage's inputs must be finished already (readable) or be requested before it."""
-    have = {n for n in STAGES if reuse and stage_done(out, n)}
-    for name in stages:
-        missing = [n for n in STAGES[name][1] if n not in have]
-        if missing:
-            damaged = [f"stages/{n}.json" for n in missing if os.path.exists(os.path.join(out, "stages", f"{n}.json"))]
-            raise BadInput(f"stage {name} needs stage(s) {missing} first (run them too, or drop --only)"
-                           + (f"; {', '.join(damaged)} is damaged" if damaged else ""))
-        have.add(name)
-
-
 def repair(run: Run) -> None:
-    """Before a resumed run's stages: read back every work file it may use. What can be redone exactly (a stage's
-    result, a score set, a TPE search, a standalone policy, timing records) is moved aside and redone, with a
-    warning; a damaged GES run stops the run with a one-line error naming the file and what to do."""
-    for name in STAGES:
-        redo_if_damaged(run.path("stages", f"{name}.json"), stage_json, part=f"redoing stage {name}")
-    stage_times(run.path("stage_seconds.json"))
+    """Before a resumed run's stages, after runkit.cli.repair has read back the stages' results: read back every
+    work file the run may use. What can be redone exactly (a score set, a TPE search, a standalone policy, timing
+    records) is moved aside and redone, with a warning; a damaged GES run stops the run with a one-line error
+    naming the file and what to do."""
     for f in sorted(glob.glob(run.path("scores", "*.json"))):
         redo_if_damaged(f, score_set, part="it is redone when a stage needs it")
     for f in sorted(glob.glob(run.path("tpe", "*.json"))):
@@ -1338,80 +1043,49 @@ def repair(run: Run) -> None:
             train_baseline(run, *job)
 
 
-def run_stage(run: Run, name: str) -> float:
-    """Run one stage unless its result exists; record its wall time (summed over attempts); returns the seconds
-    it ran (0 if skipped)."""
-    path = run.path("stages", f"{name}.json")
-    if stage_result(run, name) is not None:
-        say(f"stage {name}: done already, skipped")
-        return 0.0
-    fn = STAGES[name][0]
-    say(f"stage {name}: start")
-    clock = StageClock(run.path("stage_seconds.json"), name)
-    try:
-        result = fn(run)
-    finally:
-        seconds = clock.close()
-    write_json(path, {"stage": name, "result": result})
-    say(f"stage {name}: done in {seconds:.1f}s")
-    return seconds
+# the code that produces the numbers (simulator, PPO, GES, TPE; lanes.py: score's workers), hashed with
+# RESULTS_FORMAT into the manifest (runkit.folder.code_hash): a results folder made by other code is refused
+# instead of mixed. (run_all.py's own reporting may change freely.)
+HASHED_FILES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py")
+# this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
+PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")
+
+
+def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps: int = 40_960,
+             n_designs: int = 3) -> tuple:
+    """One job of `--rates` or a calibration, as a stage runs it (in-process env, one core): train an e2e `kind`
+    on `task` D2 for `steps`, then J of that policy on `n_designs` uniform D2 designs, timed by runkit.plan.job_rates
+    (PPO steps/s over the updates after the first, s per J, played score steps/s)."""
+    space, ckpt, stats = space_of(preset, task, "d2"), os.path.join(folder, "policy.pt"), {}
+
+    def score() -> int:   # the control steps J played (replays excluded)
+        designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
+        score_policy(ppo.load_policy(ppo.scored_path(ckpt, preset.policy_rule)), space.full(designs), task, preset,
+                     1, stats=stats)
+        return stats["episodes_played"] * preset.env_config(ballu.BalluConfig()).episode_steps
+
+    return job_rates(lambda: train_policy(ckpt, kind, task, ballu.UniformDesign(space), steps, preset, seed), score,
+                     os.path.join(folder, "log.csv"), steps, n_designs)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 7. The command line (runkit.cli: check the arguments and the output folder, run the stages, write the report)
+# ----------------------------------------------------------------------------------------------------------
+EXPERIMENT = Experiment(tool="run_all.py", description="Regenerate every table and figure of the GES paper.",
+                        home=HERE, presets=PRESETS, default_preset="quick", stages=STAGES, layout=LAYOUT, Run=Run,
+                        rate_job=rate_job, report=report, repair=repair, results_format=RESULTS_FORMAT,
+                        numbers=HASHED_FILES, files=PROJECT_FILES)
 
 
 def main(argv=None) -> int:
-    args = parse(argv)
-    preset = PRESETS[args.preset]
-    out = os.path.abspath(args.out or os.path.join(HERE, "results", preset.name))
-    try:
-        if args.workers < 1:
-            raise BadInput(f"--workers {args.workers} must be >= 1")
-        stop_by = stop_time(args.stop_by) if args.stop_by else None
-        if args.plan:
-            cal = calibration(Run(out, preset, args.seed, args.workers, args.executor, args.scheduler))
-            print(plan_text(preset, LAYOUT, args.workers, cal), flush=True)
-            return 0
-        if args.rates:
-            job, pool = functools.partial(rate_job, preset=preset), Run("", preset, 0, args.workers).pool()
-            print(rates_text(measure_rates(job, pool, args.workers)), flush=True)
-            return 0
-        stages = check_args(args)
-        manifest = {"tool": "run_all.py", "results_format": RESULTS_FORMAT, "preset": preset.name,
-                    "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed, "code_hash": code_hash(),
-                    "git_commit": git_commit(HERE), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
-        reuse = check_output(out, manifest, args.fresh)
-        check_needs(out, stages, reuse)
-        manifest = open_output(out, manifest, reuse)
-        run = Run(out, preset, args.seed, args.workers, args.executor, args.scheduler, stop_by)
-        if reuse:
-            repair(run)
-        t0 = time.time()
-        say(f"preset {preset.name}, seed {args.seed}, {args.workers} worker(s) ({args.executor}), output {out}, "
-            f"stages {stages}" + (f"; no job starts after {clock_text(stop_by)}" if stop_by else ""))
-        planned = plan_seconds(preset, LAYOUT, args.workers, calibration(run))
-        todo, ran = [s for s in stages if not stage_done(out, s)], {}
-        recorded = functools.partial(stage_times, run.path("stage_seconds.json"))
-        if todo:
-            say(run_eta(planned, ran, todo, recorded()))
-        try:
-            for name in stages:
-                if run_stage(run, name):
-                    times = recorded()
-                    ran[name] = times.get(name, 0.0)
-                    todo.remove(name)
-                    if todo:
-                        say(f"{run_eta(planned, ran, todo, times)}; elapsed {time.time() - t0:.0f}s")
-        finally:
-            close_dask_clients()
-            report(run, manifest)
-        say(f"all requested stages done in {time.time() - t0:.1f}s; see {os.path.join(out, 'REPORT.md')}")
-        return 0
-    except BadInput as e:
-        print(f"run_all.py: error: {e}", file=sys.stderr)
-        return 2
-    except StopBy as e:
-        say(f"stopped: {e} (--stop-by); the jobs under way finished and are kept: rerun the same command to go on")
-        return 3
-    finally:
-        close_dask_clients()   # a client connected by check_args, if a later check failed
+    """`python run_all.py ...` (runkit.cli.main): exit code 0; 2 on bad input, before anything is written; 3 when
+    --stop-by stopped the run."""
+    return cli.main(argv, EXPERIMENT)
+
+
+def run_stage(run: Run, name: str) -> float:
+    """Run one stage unless its result exists (runkit.cli.run_stage), as main does; returns the seconds it ran."""
+    return cli.run_stage(run, name, STAGES[name][0])
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ import ppo
 import run_all
 from experiments import ballu_capability, ges_demo, ppo_ballu, ppo_protocol, probe_agreement
 from report import figures, tables
-from runkit import logs, plan, pool, progress
+from runkit import cli, logs, plan, pool, progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
 from runkit.folder import check_output, open_output
@@ -2594,7 +2594,7 @@ def test_run_all_stopped_by_its_time_and_rerun_equals_uninterrupted(smoke_run, t
     clock = types.SimpleNamespace(time=lambda: 0.0 if next(calls) < 6 else 1e12, strftime=time.strftime,
                                   localtime=time.localtime)
     monkeypatch.setattr(rpool, "time", clock)
-    monkeypatch.setattr(run_all, "stop_time", lambda text: 1.0)
+    monkeypatch.setattr(cli, "stop_time", lambda text: 1.0)
     args = ["--preset", "smoke", "--out", str(tmp_path), "--workers", "1", "--seed", "3",
             "--only", "table1,baselines"]
     assert run_all.main(args + ["--stop-by", "12:00"]) == 3
@@ -3200,7 +3200,7 @@ def test_run_all_plan_calibrates_once_where_the_run_goes(tmp_path, capsys, monke
         return {"workers": workers, "jobs": ["mlp obstacle"] * workers, "train_rate": 444.0, "score_rate": 333.0,
                 "seconds": 1.0, "time": "now", "cpu": "test CPU", "batch": list(batch)}
 
-    monkeypatch.setattr(run_all, "calibrate", fake)
+    monkeypatch.setattr(cli, "calibrate", fake)
     out = str(tmp_path / "q")
     assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "1"]) == 0
     text = capsys.readouterr().out
@@ -3216,8 +3216,8 @@ def test_run_all_plan_calibrates_once_where_the_run_goes(tmp_path, capsys, monke
     open_output(out, manifest, reuse=False)
     assert sorted(os.listdir(out)) == sorted([plan.CALIBRATION_FILE, "manifest.json"])
     run = run_all.Run(out, run_all.QUICK, 0, 2)
-    assert run_all.calibration(run)["train_rate"] == 444.0 and calls == [1, 2]   # the run plans at --plan's rates
-    assert run_all.calibration(replace(run, preset=run_all.SMOKE)) is None       # another batch, too small to time
+    assert cli.calibration(run, run_all.rate_job)["train_rate"] == 444.0 and calls == [1, 2]   # --plan's rates
+    assert cli.calibration(replace(run, preset=run_all.SMOKE), run_all.rate_job) is None   # too small to time
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "notes.txt").write_text("x")
     assert run_all.main(["--preset", "quick", "--plan", "--out", str(tmp_path / "other")]) == 2   # not ours

@@ -1,17 +1,19 @@
-"""The figures' plotting and measuring helpers that need no run: GES's territories (Fig. 6), Fig. 7, learning
-curves, toe-height traces and the gait features Fig. 5's claim is measured by. run_all.py's figure stage feeds
-them a run's numbers. ballu is imported by the two helpers that run the robot, so the territory figure (which
-experiments/ges_demo.py draws too) needs none."""
+"""The figures and what they measure, drawn from the numbers, policies and files a caller hands them (run_all.py's
+figure stage feeds them a run's): Fig. 3's score distributions, Fig. 4's experts, Fig. 5's toe heights and the
+gait features its claim is measured by, GES's territories (Fig. 6), Fig. 7, Fig. 8's design sensitivity and
+learning curves. ballu is imported by the helpers that run the robot, so the territory figure
+(which experiments/ges_demo.py draws too) needs none."""
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
-from ges import Box
-from report.paper import PAPER_KSENS_PEAK_K
+from ges import CKPT_DIR, Box, farthest_point_sampling
+from report.paper import METHOD_NAMES, PAPER_KSENS_PEAK_K, PAPER_TABLE2
 from runkit.files import redo_if_damaged
 from runkit.logs import read_log
 
@@ -23,6 +25,155 @@ def _plt():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
+
+
+def distinct_designs(space, n: int, seed: int) -> np.ndarray:
+    """n designs from distinct regions of `space` (a ballu.DesignSpace or a ges.Box): farthest point sampling on a
+    uniform pool (as GES's own init)."""
+    rng = np.random.default_rng(seed)
+    pts = farthest_point_sampling(rng.random((2000, space.d)), n, rng)
+    return Box.of(space).from_unit(pts[np.lexsort(pts.T[::-1])])
+
+
+def fig_distributions(cells: dict, tasks, spaces, methods, units: dict, K: dict, path: str) -> str:
+    """Fig. 3: score distribution per method on the test designs, per task and space; paper means as red x.
+    `cells`: Table II's, keyed "task-space", each method's scores; `K`: specialists per space."""
+    plt = _plt()
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
+    for i, t in enumerate(tasks):
+        for j, s in enumerate(spaces):
+            ax, cell = axes[i, j], cells[f"{t}-{s}"]
+            data = [cell[m]["scores"] for m in methods]
+            ax.boxplot(data, showmeans=True, meanprops=dict(marker="o", mfc="k", mec="k", ms=5))
+            for k, m in enumerate(methods):
+                jitter = np.random.default_rng(k).uniform(-0.12, 0.12, len(data[k]))
+                ax.plot(k + 1 + jitter, data[k], ".", alpha=0.35, color="C0")
+                paper = PAPER_TABLE2[(t, s)].get(m)
+                if paper is not None:
+                    ax.plot(k + 1, paper, "rx", ms=9, mew=2)
+            ax.set_xticks(range(1, len(methods) + 1), [METHOD_NAMES[m] for m in methods], fontsize=8)
+            ax.set_ylabel(f"J [{units[t]}]")
+            ax.set_title(f"{t}, {s.upper()} (K={K[s]}), {len(data[0])} test designs", fontsize=10)
+    fig.suptitle("Fig. 3: performance distributions (box; black dot = our mean; red x = paper mean)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def fig_experts(moe, router, space, theta, cell: str, path: str) -> tuple:
+    """Fig. 4: expert contributions on designs from distinct regions (`theta`, coordinates of `space`): the e2e
+    MoE's soft gate weights vs GES's density router (`router`, a ges.GESResult: a hard choice) in the cell named
+    `cell`; gate entropy normalised by log K. Returns (path, that entropy, the gate weights, the routes)."""
+    import ballu
+    plt = _plt()
+    full = space.full(theta)
+    gate = moe.gate_weights(ballu.normalise_design(full).astype(np.float32))
+    ks = router.route(theta)
+    hard = np.eye(len(router.ckpt))[ks]
+    ent = float(np.mean(-(gate * np.log(np.clip(gate, 1e-12, 1))).sum(1)) / math.log(gate.shape[1]))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4), layout="constrained")
+    labels = [" ".join(f"{v:.3g}" for v in row) for row in theta]
+    for ax, w, title in ((axes[0], gate, f"e2e MoE gate weights (normalised entropy {ent:.2f})"),
+                         (axes[1], hard, "GES density router (entropy 0)")):
+        im = ax.imshow(w, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+        ax.set_yticks(range(len(labels)), labels if ax is axes[0] else [""] * len(labels), fontsize=7)
+        ax.set_xticks(range(w.shape[1]), [f"E{k}" for k in range(w.shape[1])])
+        ax.set_xlabel("expert / specialist")
+        ax.set_title(title, fontsize=10)
+        for (a, b), v in np.ndenumerate(w):
+            ax.text(b, a, f"{v:.2f}", ha="center", va="center", fontsize=6, color="w" if v < 0.5 else "k")
+    axes[0].set_ylabel(" ".join(space.names))
+    fig.colorbar(im, ax=axes, shrink=0.8)
+    fig.suptitle(f"Fig. 4: expert contributions on {len(theta)} distinct designs ({cell})")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path, ent, gate.tolist(), ks.tolist()
+
+
+GAIT_DESIGNS = 8   # [ours] common designs on which every specialist's gait is measured (Fig. 5's claim)
+
+
+def specialist_gaits(experts: list, space, seed: int, task: str = "obstacle", level: int = 30,
+                     steps: int | None = None) -> dict:
+    """Fig. 5's claim as a number: every specialist of a GES run (`experts`, its policies) plays one episode of
+    `steps` control steps on the same GAIT_DESIGNS designs of `space` (distinct_designs by `seed`) facing the
+    level-30 obstacle; per gait feature, a Friedman test (designs as blocks) of whether the specialists differ.
+    'Specialists behave differently' is supported if some feature differs at p < 0.05 / len(GAIT_FEATURES)
+    (Bonferroni). Needs K >= 3 (Friedman)."""
+    import ballu
+    from scipy.stats import friedmanchisquare
+
+    from report.tables import GAIT_FEATURES
+    designs = space.full(distinct_designs(space, GAIT_DESIGNS, seed))
+    dt = ballu.BalluConfig().control_dt
+    feats = [[gait_features(toe_heights(e, d[None], task, level, steps), dt) for d in designs] for e in experts]
+    out = {"K": len(experts), "designs": len(designs), "features": {}}
+    for f in GAIT_FEATURES:
+        table = np.array([[g[f] for g in per_design] for per_design in feats])   # (K, designs)
+        same = np.all(table == table[0])
+        p = 1.0 if same or len(experts) < 3 else float(friedmanchisquare(*table).pvalue)
+        out["features"][f] = {"mean": table.mean(axis=1).tolist(), "p": p}
+    return out
+
+
+def fig_toes(experts: list, design_full, path: str, steps: int | None = None) -> str:
+    """Fig. 5: toe heights of a GES run's specialists (`experts`, the run's policies) on one full design (the GES
+    peak) at a 30 cm obstacle (level 30 = 30.1 cm) at x = 0.5 m, episodes of `steps` control steps."""
+    import ballu
+    plt = _plt()
+    fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    dt = ballu.BalluConfig().control_dt
+    for k, expert in enumerate(experts):
+        z = toe_heights(expert, design_full, steps=steps)
+        tt = np.arange(len(z)) * dt
+        for side in range(2):
+            axes[side].plot(tt, 100 * z[:, side], color=COLORS[k % len(COLORS)], label=f"specialist {k}")
+    for side, name in enumerate(("left", "right")):
+        axes[side].axhline(30.1, color="gray", ls="--", lw=1)
+        axes[side].set_ylabel(f"{name} toe z [cm]")
+    axes[1].set_xlabel("time [s]")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Fig. 5: toe heights of {len(experts)} GES specialists on design "
+                 f"{np.round(design_full[0], 4).tolist()} facing a 30 cm obstacle (dashed)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def fig_sensitivity(panels: list, path: str) -> str:
+    """Fig. 8: the GES score over D2 for each task, interpolated between the test designs (dots). `panels`: per
+    task, (task, its D2 space, the test designs in its coordinates, GES's scores on them, the score's unit)."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, (t, space, th, z, unit) in zip(axes, panels):
+        z = np.array(z)
+        if len(z) >= 4 and np.ptp(z) > 0:
+            try:
+                cs = ax.tricontourf(th[:, 0], th[:, 1], z, levels=12, cmap="viridis")
+                fig.colorbar(cs, ax=ax, label=f"J [{unit}]")
+            except (ValueError, RuntimeError):   # degenerate triangulation: dots only
+                pass
+        sc = ax.scatter(th[:, 0], th[:, 1], c=z, cmap="viridis", edgecolors="k", s=25)
+        if len(z) < 4 or np.ptp(z) == 0:
+            fig.colorbar(sc, ax=ax, label=f"J [{unit}]")
+        ax.set(xlabel="GCR", ylabel="SPCF", xlim=(space.lo[0], space.hi[0]), ylim=(space.lo[1], space.hi[1]),
+               title=f"{t}: GES score over D2 ({len(z)} test designs)")
+    fig.suptitle("Fig. 8: design sensitivity of GES performance")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def ges_logs(run_dir: str) -> list:
+    """A GES run's learning curves for fig_curves: each specialist's per-round CSVs, in round order (steps are
+    cumulative across rounds); specialists by the ids in the file names (adaptive K's challengers count on past K)."""
+    ck = os.path.join(run_dir, CKPT_DIR)
+    files = [f for f in (sorted(os.listdir(ck)) if os.path.isdir(ck) else []) if f.endswith(".csv")]
+    ids = sorted({int(f[len("spec"):].split("_")[0]) for f in files if f.startswith("spec")})
+    return [(f"specialist {k}", [os.path.join(ck, f) for f in files if f.startswith(f"spec{k}_")]) for k in ids]
 
 
 def toe_heights(policy, design_full, task: str = "obstacle", level: int = 30, steps: int | None = None) -> np.ndarray:

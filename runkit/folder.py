@@ -1,6 +1,7 @@
 """A run's output folder: refuse one that holds another run, start over or reuse it, and name the code."""
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
@@ -19,6 +20,16 @@ def git_commit(where: str) -> str:
         return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else "unknown"
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+
+
+def code_hash(where: str, files, version: int) -> str:
+    """Hash of the code that produces a run's numbers, `files` under `where` in this order, plus its results format
+    `version`: a results folder made by other code is refused instead of mixed (check_output)."""
+    h = hashlib.sha256(str(version).encode())
+    for name in files:
+        with open(os.path.join(where, name), "rb") as fh:
+            h.update(fh.read())
+    return h.hexdigest()[:16]
 
 
 def check_ours(out: str) -> bool:

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from runkit.logs import read_log
+
 # [ours] per-core rates in control steps/s as run_all runs its jobs (one single-process job per core, both cores
 # busy, each kind of policy on each task), measured by `python run_all.py --rates` on one machine: the plan's
 # rates where no calibration of the run's own machine is at hand (docs/presets.md). VMs of one kind differ ~2x.
@@ -178,6 +180,21 @@ def measure_rates(rate_job, executor, workers: int, out: str | None = None, jobs
     return {"workers": workers, "jobs": [f"{k} {t}" for k, t in todo], "train_steps_per_s": train,
             "seconds_per_J": per_J, "played_steps_per_s": played, "train_rate": float(np.mean(train)),
             "score_rate": float(np.mean(played))}
+
+
+def job_rates(train, score, log_csv: str, steps: int, n_designs: int) -> tuple:
+    """A rate job's numbers (measure_rates' contract), timed as a stage runs its jobs: `train()` trains a policy for
+    `steps` PPO steps, logging to `log_csv`; then `score()` scores `n_designs` designs and returns the control
+    steps it played. Returns (PPO steps/s over the updates after the first, s per J, played score steps/s: the
+    steps J actually simulated, replays excluded)."""
+    t0 = time.time()
+    train()
+    t1 = time.time()
+    played = score()
+    scored = time.time() - t1
+    rates = read_log(log_csv)["steps_per_s"][1:]   # the first update also builds the env
+    rate = len(rates) / np.sum(1.0 / rates) if len(rates) else steps / (t1 - t0)   # as REPORT.md's rate line
+    return rate, scored / n_designs, played / scored
 
 
 def rates_text(r: dict) -> str:

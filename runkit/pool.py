@@ -3,12 +3,13 @@ or a local process pool whose workers end with the run that started them."""
 from __future__ import annotations
 
 import glob
+import multiprocessing as mp
 import os
 import tempfile
 import threading
 import time
 import zipfile
-from concurrent.futures import Executor, ThreadPoolExecutor, as_completed
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 
 from runkit.files import BadInput
 
@@ -83,6 +84,22 @@ def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
             time.sleep(every)
         os._exit(1)
     threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
+
+
+def executor(kind: str, workers: int, scheduler: str | None = None, files=(), stop_by: float | None = None,
+             inline=None) -> Executor:
+    """The executor of a run's independent jobs: kind "dask", a Dask cluster's (dask_client: at `scheduler`, or a
+    local one of `workers` processes; a cluster started by hand gets `files`); kind "process", a process pool
+    (spawn: the parent holds torch threads; its workers end with the run: exit_with_parent), or `inline()` (an
+    executor that runs each job in the caller) with 1 worker. With `stop_by`, no job starts after it (GatedExecutor)."""
+    if kind == "dask":
+        ex = dask_executor(dask_client(scheduler, workers, files))
+    elif workers <= 1:
+        ex = inline()
+    else:
+        ex = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
+                                 initargs=(os.getpid(),))
+    return ex if stop_by is None else GatedExecutor(ex, stop_by)
 
 
 def side_by_side(jobs: dict, progress, inline: bool = False) -> dict:
