@@ -337,7 +337,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     events = None
     if config.adaptive:   # merge a redundant specialist, split an unevenly served territory (section 9)
         new, cov, events = adapt_k(new, checks, scores[:, len(probes):], config, points)
-    entry = history_entry(space, new, cov, probes, winner, ids, events)
+    entry = history_entry(space, new, cov, probes, winner, ids, events, scores[:, :len(probes)])
     return replace(new, history=state.history + [entry])
 
 
@@ -564,17 +564,20 @@ def _atomic_json(path: str, obj) -> None:
     os.replace(tmp, path)
 
 
-def history_entry(space, state: GESState, cov: float, probes, winner, trained: list, events: list | None) -> dict:
+def history_entry(space, state: GESState, cov: float, probes, winner, trained: list, events: list | None,
+                  scores=None) -> dict:
     """One history record. "round" counts completed rounds (0 = initialisation); entry r holds the territories
     after refit r, the probes of training round r-1 with their winners (indices into `trained`, the ids that
-    trained), and that round's checkpoints; adaptive K adds the ids and the round's merges and splits."""
+    trained) and every specialist's score of every probe (`probe_scores`, one row per trained id: how close each
+    win was, ties included), and that round's checkpoints; adaptive K adds the ids and the round's merges and
+    splits."""
     entry = {"round": state.round, "coverage": cov,
              "mu_unit": state.mu.tolist(), "sigma_unit": state.sigma.tolist(),
              "mu": space.from_unit(state.mu).tolist(), "sigma": (state.sigma * (space.hi - space.lo)).tolist(),
              "wins": [int(w) for w in np.bincount(winner, minlength=len(trained))],
              "n_designs": [len(e) for e in state.eta],
              "probes_unit": np.asarray(probes).tolist(), "winner": [int(w) for w in winner],
-             "ckpt": list(state.ckpt)}
+             "probe_scores": [] if scores is None else np.asarray(scores, float).tolist(), "ckpt": list(state.ckpt)}
     if events is not None:
         entry.update(ids_trained=list(trained), ids=list(state.ids), events=events)
     return entry

@@ -1706,6 +1706,21 @@ def test_ges_synthetic_trainer_really_improves(tmp_path):
     assert np.argmax(read_json(tmp_path / "b.ckpt")["p"]) == 0  # learnt the behaviour of site 0
 
 
+def test_ges_history_keeps_every_probe_score(synthetic_run):
+    """Each round's history entry keeps the K x F probe score matrix: its column argmax (ties to the lower index,
+    eq. 6) is the recorded winner, and each score is the specialist's own score of that probe, recomputed."""
+    res, land = synthetic_run, _land()
+    for h in res.history["rounds"][1:]:
+        S, probes = np.array(h["probe_scores"]), np.array(h["probes_unit"])
+        assert S.shape == (len(h["mu"]), len(probes)) and list(np.argmax(S, axis=0)) == h["winner"]
+    h = res.history["rounds"][-1]
+    ckpt = [os.path.join(res.run_dir, c) for c in h["ckpt"]]
+    for k, c in enumerate(ckpt):
+        np.testing.assert_array_equal(land.score(k, c, res.space.from_unit(np.array(h["probes_unit"]))),
+                                      np.array(h["probe_scores"])[k])
+    assert res.history["rounds"][0]["probe_scores"] == []
+
+
 def test_ges_synthetic_reaches_coverage_and_specialises(synthetic_run):
     res = synthetic_run
     hist = res.history["rounds"]
