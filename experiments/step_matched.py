@@ -7,7 +7,8 @@
     python -m experiments.step_matched run ~/runs/sm/seed0 [--workers 2]       # resumable: rerun to go on
     python -m experiments.ges_territories extract 9eb76ac:docs/overnight/seed0/state/ges.tar.gz ~/runs/terr/seed0
     python -m experiments.step_matched rescore ~/runs/sm/seed0 ~/runs/terr/seed0   # GES, e2e MLP on this CPU
-    python -m experiments.step_matched table docs/overnight/seed0 ~/runs/sm/seed0 [...pairs] [--out MD]
+    python -m experiments.step_matched keep ~/runs/sm/seed0 docs/overnight/seed0 docs/ges_schedule/seed0
+    python -m experiments.step_matched table docs/overnight/seed0 docs/ges_schedule/seed0 [...pairs] [--out MD]
 
 A committed run keeps its e2e MLPs without optimiser state; the ones GES warm-started from (optimiser, normaliser,
 curriculum) are in git history. `prepare` copies them and the run's GES stage into a work folder, `run` trains and
@@ -94,12 +95,35 @@ def rescore(work: str, ges_runs: str, workers: int) -> None:
     run_all.score_sets(r, jobs, "score sets on this machine")
 
 
+def keep(work: str, run_folder: str, docs: str) -> None:
+    """What a later session needs of a finished work folder, into the repository: the stage's result, every score
+    set and each training log under `docs`, each scored step-matched policy (optimiser dropped, as every committed
+    policy) in the run's policies/ folder, where a run of today's run_all.py keeps it."""
+    import shutil
+    import torch
+    for sub in ("scores", "logs"):
+        os.makedirs(os.path.join(docs, sub), exist_ok=True)
+    shutil.copy(os.path.join(work, "stages", "matched.json"), os.path.join(docs, "matched.json"))
+    for f in sorted(os.listdir(os.path.join(work, "scores"))):
+        shutil.copy(os.path.join(work, "scores", f), os.path.join(docs, "scores", f))
+    for t in run_all.TASKS:
+        for s in run_all.SPACES:
+            name = f"{run_all.MATCHED}-{t}-{s}"
+            shutil.copy(os.path.join(work, "policies", name, "log.csv"), os.path.join(docs, "logs", f"{name}.csv"))
+            st = run_all.ppo.load_checkpoint(os.path.join(work, "policies", name, "policy_best.pt"))
+            dst = os.path.join(run_folder, "policies", name, "policy_best.pt")
+            os.makedirs(os.path.dirname(dst), exist_ok=True)
+            torch.save({k: v for k, v in st.items() if k not in ("optimizer", "run")}, dst)
+            print(f"{dst}: {st['steps']:,} steps")
+
+
 def cell_rows(run_folder: str, work: str) -> list:
     """Per cell: J of GES, the e2e MLP and the step-matched e2e MLP on the run's test designs, paired; GES and the
     e2e MLP as rescored on this machine (rescore) where they are, else the run's own test scores."""
     rows = list(csv.DictReader(open(os.path.join(run_folder, "test_scores.csv"))))
-    matched = json.load(open(os.path.join(work, "stages", "matched.json")))["result"]
-    man = json.load(open(os.path.join(work, "manifest.json")))
+    kept = os.path.join(work, "matched.json")   # a folder `keep` wrote, or the work folder itself
+    matched = json.load(open(kept if os.path.exists(kept) else os.path.join(work, "stages", "matched.json")))["result"]
+    man = json.load(open(os.path.join(run_folder, "results.json")))["manifest"]
     r = run_all.Run(work, run_all.PRESETS[man["preset"]], int(man["seed"]), 1)
     out = []
     for t in run_all.TASKS:
@@ -127,7 +151,7 @@ def table(pairs: list) -> str:
              "GES - step-matched | step-matched - e2e MLP |", "|---" * 9 + "|"]
     note = ""
     for run_folder, work in pairs:
-        seed = json.load(open(os.path.join(work, "manifest.json")))["seed"]
+        seed = json.load(open(os.path.join(run_folder, "results.json")))["manifest"]["seed"]
         for r in cell_rows(run_folder, work):
             note = note or ("" if r["rescored"] else " (* GES and e2e MLP: the run's own scores, maybe another CPU)")
             lines.append(f"| {seed} | {r['cell']} ({r['unit']}){'' if r['rescored'] else ' *'} | {r['steps']:,} | {r['ges']:.1f} | {r['mlp']:.1f} | "
@@ -151,6 +175,9 @@ def main(argv=None) -> int:
     p.add_argument("work")
     p.add_argument("ges_runs")
     p.add_argument("--workers", type=int, default=2)
+    p = sub.add_parser("keep")
+    for n in ("work", "run_folder", "docs"):
+        p.add_argument(n)
     p = sub.add_parser("table")
     p.add_argument("pairs", nargs="+", help="RUN_FOLDER WORK_FOLDER, repeated")
     p.add_argument("--out")
@@ -159,6 +186,8 @@ def main(argv=None) -> int:
         prepare(a.run_folder, a.state, os.path.expanduser(a.out))
     elif a.cmd == "run":
         run(os.path.expanduser(a.out), a.workers)
+    elif a.cmd == "keep":
+        keep(os.path.expanduser(a.work), a.run_folder, a.docs)
     elif a.cmd == "rescore":
         rescore(os.path.expanduser(a.work), os.path.expanduser(a.ges_runs), a.workers)
     else:
@@ -167,7 +196,7 @@ def main(argv=None) -> int:
         text = table([(a.pairs[i], os.path.expanduser(a.pairs[i + 1])) for i in range(0, len(a.pairs), 2)])
         if a.out:
             open(a.out, "w").write(text)
-        print(text)
+        sys.stdout.write(text)
     return 0
 
 
