@@ -5,7 +5,7 @@ e2e MLP and the step-matched e2e MLP, on designs drawn from its round-0 territor
     python -m experiments.ges_territories extract d06d56e:docs/overnight/seed1/state.tar ~/runs/terr/seed1
     python -m experiments.ges_territories run docs/overnight/seed0 ~/runs/terr/seed0 ~/runs/sm/seed0 \
         [--cells obstacle-d2,obstacle-d3] [--designs 12] [--workers 2]          # resumable: rerun to go on
-    python -m experiments.ges_territories table ~/runs/terr/seed0 [~/runs/terr/seed1 ...] [--out MD]
+    python -m experiments.ges_territories table ~/runs/terr/seed0 [docs/ges_schedule/territories/seed1 ...] [--out MD]
 
 A committed run keeps each specialist's last round only; every round's checkpoints are in its resume state in git
 history (`extract` takes the main GES runs out of it). For specialist k, `designs` designs are drawn from
@@ -115,7 +115,8 @@ def table(terrs: list) -> str:
     for terr in terrs:
         seed = os.path.basename(os.path.normpath(terr)).replace("seed", "")
         rows = {}
-        for f in sorted(glob.glob(os.path.join(terr, "jobs", "*.json"))):
+        jobs = os.path.join(terr, "jobs") if os.path.isdir(os.path.join(terr, "jobs")) else terr   # or a docs copy
+        for f in sorted(glob.glob(os.path.join(jobs, "*.json"))):
             d = read_json(f)
             cell, spec, which, pol = d["key"].rsplit("-", 3)
             rows.setdefault((cell, spec, which), {})[pol] = np.array(d["scores"])
