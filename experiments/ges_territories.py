@@ -21,7 +21,6 @@ import glob
 import io
 import json
 import os
-import subprocess
 import sys
 import tarfile
 import zlib
@@ -33,6 +32,7 @@ HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, HERE)
 
 import run_all  # noqa: E402
+from experiments.step_matched import git_show  # noqa: E402
 from runkit.files import read_json, write_json  # noqa: E402
 
 MAIN = {f"{t}-{s}": f"{t}-{s}-K{3 if s == 'd2' else 6}-fps-lloyd" for t in run_all.TASKS for s in run_all.SPACES}
@@ -41,8 +41,7 @@ MAIN = {f"{t}-{s}": f"{t}-{s}-K{3 if s == 'd2' else 6}-fps-lloyd" for t in run_a
 def extract(spec: str, out: str) -> None:
     """The main GES runs' folders (every round's checkpoints, history.json) from a resume state in history."""
     commit, path = spec.split(":", 1)
-    data = subprocess.run(["git", "-C", HERE, "show", f"{commit}:{path}"], check=True, capture_output=True).stdout
-    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+    with tarfile.open(fileobj=io.BytesIO(git_show(f"{commit}:{path}"))) as tar:
         for m in tar.getmembers():
             parts = m.name.split("/")
             i = parts.index("ges") if "ges" in parts else -1
