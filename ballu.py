@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from runkit.box import Box   # names, bounds, the unit cube: one home with ges.py
 from runkit.lanes import VecEnv, check_actions, check_split, quiet_stdout, score_lanes, shared_pool  # noqa: F401
 
 with quiet_stdout((1, 2)):   # no "pybullet build time" banner in every script and worker
@@ -60,69 +61,25 @@ VALID_HIGH = np.array([1.00, 1.00, 0.99, 1.0])
 
 
 @dataclass
-class DesignSpace:
-    """A BALLU design space: a box of free parameters (names, lows, highs) plus fixed values for the rest of
-    (l_f, l_t, gcr, spcf). The free name "l" means l_f = l_t = l (D3). `full` maps a design of the space to the
-    full 4-vector a lane receives. The co-design (ges.py) sees only the box: names, lows, highs."""
-    names: tuple
-    lows: tuple
-    highs: tuple
+class DesignSpace(Box):
+    """A BALLU design space: a box of free parameters (runkit/box.py: names, lows, highs, the unit cube) plus
+    fixed values for the rest of (l_f, l_t, gcr, spcf). The free name "l" means l_f = l_t = l (D3). `full` maps a
+    design of the space to the full 4-vector a lane receives. The co-design (ges.py) sees only the box."""
     fixed: dict = field(default_factory=dict)
     task: str | None = None
 
     def __post_init__(self):
-        self.names = tuple(self.names)
-        self.lows, self.highs = tuple(map(float, self.lows)), tuple(map(float, self.highs))
+        super().__post_init__()
         self.fixed = {str(n): float(v) for n, v in self.fixed.items()}
-        if not (len(self.names) == len(self.lows) == len(self.highs) >= 1):
-            raise ValueError(f"names/lows/highs must have the same length >= 1, got {len(self.names)}/"
-                             f"{len(self.lows)}/{len(self.highs)}")
-        for n, lo, hi in zip(self.names, self.lows, self.highs):
+        for n in self.names:
             if n not in SPACE_NAMES:
                 raise ValueError(f"design parameter name {n!r} not in {SPACE_NAMES}")
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-                raise ValueError(f"bounds of {n} must be finite with low < high, got [{lo}, {hi}]")
         for n in DESIGN_NAMES:  # every full parameter must come from somewhere
             if n not in self.names and n not in self.fixed and not (n in ("l_f", "l_t") and "l" in self.names):
                 raise ValueError(f"parameter {n} is neither free nor fixed in this design space")
 
-    @property
-    def d(self) -> int:
-        return len(self.names)
-
-    @property
-    def lo(self) -> np.ndarray:
-        return np.array(self.lows)
-
-    @property
-    def hi(self) -> np.ndarray:
-        return np.array(self.highs)
-
-    def validate(self, theta) -> np.ndarray:
-        """theta as an (n, d) array, or a ValueError naming the parameter and its range. (ges.Box.validate does
-        the same for GES's box: a small repeat that keeps ges.py free of the robot.)"""
-        arr = np.asarray(theta, dtype=float)
-        arr = arr[None, :] if arr.ndim == 1 else arr
-        if arr.ndim != 2 or arr.shape[1] != self.d:
-            raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
-                             f"columns {self.names}")
-        lo, hi = self.lo, self.hi
-        tol = 1e-9 * (hi - lo)  # round-off of a unit-cube round trip must not be an error
-        for j, n in enumerate(self.names):
-            bad = ~np.isfinite(arr[:, j]) | (arr[:, j] < lo[j] - tol[j]) | (arr[:, j] > hi[j] + tol[j])
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise ValueError(f"{n}={float(arr[i, j])!r} (row {i}) is outside the design space: allowed range "
-                                 f"[{self.lows[j]}, {self.highs[j]}]")
-        return arr
-
-    def sample_uniform(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """n uniform designs of the space (its own coordinates)."""
-        return self.lo + rng.random((n, self.d)) * (self.hi - self.lo)
-
     def to_dict(self) -> dict:
-        return {"names": list(self.names), "lows": list(self.lows), "highs": list(self.highs),
-                "fixed": dict(self.fixed), "task": self.task}
+        return {**super().to_dict(), "fixed": dict(self.fixed), "task": self.task}
 
     def full(self, theta) -> np.ndarray:
         """(n, 4) array of (l_f, l_t, gcr, spcf) (paper Sec. III-B: D2 fixes the legs, D3 ties them)."""

@@ -33,9 +33,8 @@ specialists can run in a process pool):
 
 Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, router, refit, probes),
 3. initialisation and the run's state, 4. the GES loop (Alg. 1), 5. the routed evaluator; then the machinery:
-6. the design box, 7. settings' checks, state files, history and result, 8. executors, 9. adaptive K (an
-option, ours: merge a specialist another serves as well, split a territory its specialist serves unevenly),
-10. the command line, whose code lives in experiments/ges_demo.py with the synthetic landscape and the benchmark.
+6. settings' checks, state files, history and result, 7. executors, 8. adaptive K (an option, ours: merge a
+specialist another serves as well, split a territory its specialist serves unevenly), 9. the command line, whose code lives in experiments/ges_demo.py with the synthetic landscape and the benchmark.
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn); the figure of
 a run's territories is report.figures.plot_territories(history, path). `python ges.py --demo OUT` runs a
@@ -54,6 +53,8 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
+
+from runkit.box import Box   # the design box: names, bounds, the unit cube [paper, Sec. IV-B]
 
 # ---------------------------------------------------------------------------------------------------------
 # 1. Settings and randomness
@@ -83,7 +84,7 @@ class GESConfig:
     router: str = "density"           # outer-loop router: 'density' [paper, eq. 10] or 'oracle' [facts, QUIRK]
     # Adaptive K [ours; the paper's Sec. VI names it as open, its runs fix K]: K above is then the start, and
     # between rounds a redundant specialist is merged, a territory its specialist serves unevenly is split
-    # (section 9 below; study: docs/ges_adaptive).
+    # (section 8 below; study: docs/ges_adaptive).
     adaptive: bool = False            # False: the paper's fixed K
     K_min: int = 1                    # bounds of the adaptive K
     K_max: int = 8
@@ -95,7 +96,7 @@ class GESConfig:
     challenge_rounds: int = 2         # rounds a specialist (the first K, a challenger) trains before a merge test
 
     def __post_init__(self):
-        _check_config(self)   # section 7: one ValueError naming the setting and what is allowed
+        _check_config(self)   # section 6: one ValueError naming the setting and what is allowed
 
 
 # Every draw comes from a generator derived from (seed, stream, round, k), so results do not depend on the
@@ -272,16 +273,16 @@ def calibrate_sigma(mu: np.ndarray, points: np.ndarray, target: float = 0.12, ta
 @dataclass
 class GESState:
     """Where a run stands after `round` completed rounds (0: the initialisation), in unit coordinates. Saved as
-    state.json after every round (section 7), so a run resumes where it stopped."""
+    state.json after every round (section 6), so a run resumes where it stopped."""
     round: int
     mu: np.ndarray            # (K, d) territory centres
     sigma: np.ndarray         # (K, d) territory standard deviations (diagonal Sigma_k)
     eta: list                 # eta_k: the (n_k, d) designs specialist k holds (its seeds and the probes it won)
     ckpt: list                # each specialist's last checkpoint, relative to run_dir (None before round 0)
     done: bool                # covered (or at the round cap): the loop ends
-    history: list             # history.json's rounds (section 7)
+    history: list             # history.json's rounds (section 6)
     ids: list                 # each specialist's id: its index with a fixed K (adaptive K retires some)
-    adapt: dict | None = None     # adaptive K's bookkeeping (section 9): wait, next_id, born, parent, strikes
+    adapt: dict | None = None     # adaptive K's bookkeeping (section 8): wait, next_id, born, parent, strikes
     task_seconds: list = field(default_factory=list)   # per round, each train and probe task's own seconds
 
     @property
@@ -297,7 +298,7 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
     sigma = calibrate_sigma(mu, points, config.init_coverage, config.tau)
     eta = [sample_clipped(mu[k], sigma[k], rng_for(seed, INIT_DESIGNS, k), config.n_init_designs)
            for k in range(config.K)]
-    ids = list(range(config.K))   # adaptive K: a specialist's id names it while others come and go (section 9)
+    ids = list(range(config.K))   # adaptive K: a specialist's id names it while others come and go (section 8)
     born = {str(k): 0 for k in ids}   # adaptive K judges the first K like challengers born in round 0
     adapt = dict(wait={}, next_id=config.K, born=born) if config.adaptive else None
     state = GESState(0, mu, sigma, eta, [None] * config.K, False, [], ids, adapt)
@@ -311,7 +312,7 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
 # ---------------------------------------------------------------------------------------------------------
 def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state: GESState, points) -> GESState:
     """One pass of Alg. 1's loop (lines 7-18): Train, Probe (eq. 6), Refit (eq. 7), CheckCoverage (eqs. 8-9;
-    the paper's text calls it line 18); then, with config.adaptive, section 9's merges and splits. Returns the
+    the paper's text calls it line 18); then, with config.adaptive, section 8's merges and splits. Returns the
     next state; `state` is not modified. A specialist is named by its id (its index with a fixed K): its seeds
     and checkpoint files follow it when others are merged away."""
     t, K, ids = state.round, state.K, state.ids
@@ -323,7 +324,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     # best scorer wins it, ties to the lower index [facts]. Adaptive K's checks share the specialists' one call.
     probes = sample_probes(state.mu, state.sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
                            (config.band_lo, config.band_hi))
-    checks = draw_checks(space, config, seed, state)   # section 9; none with a fixed K
+    checks = draw_checks(space, config, seed, state)   # section 8; none with a fixed K
     scores, probe_s = score_all(executor, score_fn, run_dir, ids, ckpt,
                                 space.from_unit(np.vstack([probes, checks.reshape(-1, space.d)])))
     winner = np.argmax(scores[:, :len(probes)], axis=0)
@@ -335,7 +336,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
                   done=bool(t + 1 >= config.max_rounds or cov >= config.target_coverage),
                   task_seconds=state.task_seconds + [{"train": train_s, "probe": probe_s}])
     events = None
-    if config.adaptive:   # merge a redundant specialist, split an unevenly served territory (section 9)
+    if config.adaptive:   # merge a redundant specialist, split an unevenly served territory (section 8)
         new, cov, events = adapt_k(new, checks, scores[:, len(probes):], config, points)
     entry = history_entry(space, new, cov, probes, winner, ids, events, scores[:, :len(probes)])
     return replace(new, history=state.history + [entry])
@@ -399,7 +400,7 @@ class GESResult:
     rounds: int
     coverage: float
     task_seconds: float = 0.0   # every train and probe task's own seconds, summed: GES's compute (core-s)
-    ids: list = field(default_factory=list)   # each specialist's id (section 9; 0..K-1 with a fixed K)
+    ids: list = field(default_factory=list)   # each specialist's id (section 8; 0..K-1 with a fixed K)
 
     def route(self, theta) -> np.ndarray:
         """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
@@ -439,82 +440,7 @@ def routed_evaluator(result: GESResult, score_fn: Callable, router: str | None =
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 6. The design space: a box of named bounds, worked in the normalised box [0, 1]^d [paper, Sec. IV-B]
-# ---------------------------------------------------------------------------------------------------------
-@dataclass
-class Box:
-    """An axis-aligned box of named design parameters, physical units. GES works in the unit cube [0,1]^d
-    [paper, Sec. IV-B: "normalized design space"], mapped linearly per axis. What a design means (a robot's
-    legs, buoyancy, springs) is the caller's business: ballu.py builds its D2/D3 as Boxes' names and bounds."""
-    names: tuple
-    lows: tuple
-    highs: tuple
-
-    def __post_init__(self):
-        self.names = tuple(str(n) for n in self.names)
-        self.lows, self.highs = tuple(map(float, self.lows)), tuple(map(float, self.highs))
-        if not (len(self.names) == len(self.lows) == len(self.highs) >= 1):
-            raise ValueError(f"names/lows/highs must have the same length >= 1, got {len(self.names)}/"
-                             f"{len(self.lows)}/{len(self.highs)}")
-        for n, lo, hi in zip(self.names, self.lows, self.highs):
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-                raise ValueError(f"bounds of {n} must be finite with low < high, got [{lo}, {hi}]")
-
-    @classmethod
-    def of(cls, space) -> "Box":
-        """The box of any object with names, lows and highs (e.g. a ballu.DesignSpace)."""
-        return cls(tuple(space.names), tuple(space.lows), tuple(space.highs))
-
-    @property
-    def d(self) -> int:
-        return len(self.names)
-
-    @property
-    def lo(self) -> np.ndarray:
-        return np.array(self.lows)
-
-    @property
-    def hi(self) -> np.ndarray:
-        return np.array(self.highs)
-
-    def to_unit(self, theta) -> np.ndarray:
-        """Physical -> unit cube (linear per axis)."""
-        return (np.asarray(theta, dtype=float) - self.lo) / (self.hi - self.lo)
-
-    def from_unit(self, x) -> np.ndarray:
-        """Unit cube -> physical."""
-        return self.lo + np.asarray(x, dtype=float) * (self.hi - self.lo)
-
-    def validate(self, theta) -> np.ndarray:
-        """Return theta as an (n, d) float array, or raise ValueError naming the offending parameter."""
-        arr = np.asarray(theta, dtype=float)
-        arr = arr[None, :] if arr.ndim == 1 else arr
-        if arr.ndim != 2 or arr.shape[1] != self.d:
-            raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
-                             f"columns {self.names}")
-        tol = 1e-9 * (self.hi - self.lo)  # round-off of from_unit(to_unit(.)) must not be an error
-        for j, n in enumerate(self.names):
-            bad = ~np.isfinite(arr[:, j]) | (arr[:, j] < self.lo[j] - tol[j]) | (arr[:, j] > self.hi[j] + tol[j])
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise ValueError(f"{n}={float(arr[i, j])!r} (row {i}) is outside the design space: allowed range "
-                                 f"[{self.lows[j]}, {self.highs[j]}]")
-        return arr
-
-    def sample_uniform(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """n uniform designs, physical units."""
-        return self.from_unit(rng.random((n, self.d)))
-
-    def to_dict(self) -> dict:
-        return {"names": list(self.names), "lows": list(self.lows), "highs": list(self.highs)}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "Box":
-        return cls(tuple(d["names"]), tuple(d["lows"]), tuple(d["highs"]))
-
-
-# ---------------------------------------------------------------------------------------------------------
-# 7. Settings' checks; state files, history, result (all JSON; floats round-trip exactly through json's repr)
+# 6. Settings' checks; state files, history, result (all JSON; floats round-trip exactly through json's repr)
 # ---------------------------------------------------------------------------------------------------------
 def _check_config(c: GESConfig) -> None:
     def need(name, ok, allowed):
@@ -656,7 +582,7 @@ def load_result(run_dir: str) -> GESResult:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 8. Executors: the K specialists' train and probe tasks are independent [paper, Sec. V-D]
+# 7. Executors: the K specialists' train and probe tasks are independent [paper, Sec. V-D]
 # ---------------------------------------------------------------------------------------------------------
 class SerialExecutor(Executor):
     """Runs each task inline at submit(): for debugging and tests. Same results as any other Executor."""
@@ -714,7 +640,7 @@ def score_all(executor, score_fn, run_dir, ids, ckpt, designs) -> tuple[np.ndarr
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 9. Adaptive K [ours]: the paper's first open direction (Sec. VI), an option beside its fixed K
+# 8. Adaptive K [ours]: the paper's first open direction (Sec. VI), an option beside its fixed K
 # ---------------------------------------------------------------------------------------------------------
 # Each round every specialist also scores n_check designs drawn from every territory ("checks"): S[i, j] holds
 # specialist i's scores on territory j's checks, compared in units of the round's scale, the mean over
@@ -853,7 +779,7 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 10. Command line: --demo, --sweep, --bench (experiments/ges_demo.py: the synthetic landscape, the benchmark)
+# 9. Command line: --demo, --sweep, --bench (experiments/ges_demo.py: the synthetic landscape, the benchmark)
 # ---------------------------------------------------------------------------------------------------------
 def main(argv=None) -> int:
     """`python ges.py --demo OUT [--K auto --sites B] | --sweep | --bench`: experiments/ges_demo.py's command

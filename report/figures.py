@@ -12,7 +12,8 @@ from typing import Callable
 
 import numpy as np
 
-from ges import CKPT_DIR, Box, farthest_point_sampling
+from ges import CKPT_DIR, farthest_point_sampling
+from runkit.box import Box
 from report.paper import METHOD_NAMES, PAPER_KSENS_PEAK_K, PAPER_TABLE2
 from runkit.files import redo_if_damaged
 from runkit.logs import read_log
