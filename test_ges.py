@@ -2649,6 +2649,34 @@ def test_run_all_bad_input_exits_2_and_overwrites_nothing(smoke_run, tmp_path, c
     assert proc.returncode == 2 and "unknown stage" in proc.stderr
 
 
+def test_run_all_set_overrides_a_budget_kept_and_checked_by_name(tmp_path, capsys, monkeypatch):
+    """--set FIELD=VALUE changes the preset (typed by the field), the plan and the manifest; a rerun with another
+    value is refused naming the budget; a bad field or value is a one-line error that writes nothing."""
+    out, base = str(tmp_path / "r"), ["--preset", "smoke", "--workers", "1", "--only", "table1"]
+    assert run_all.main(base + ["--out", out, "--set", "n_test=2", "--set", "ksens_K=1,2,3",
+                                "--set", "probe_level_steps=none"]) == 0
+    man = json.load(open(os.path.join(out, "manifest.json")))
+    assert man["budgets"]["n_test"] == 2 and man["budgets"]["ksens_K"] == [1, 2, 3]
+    assert man["overrides"] == {"n_test": 2, "ksens_K": [1, 2, 3], "probe_level_steps": None}
+    assert "n_test=2" in open(os.path.join(out, "REPORT.md")).read()
+    capsys.readouterr()
+    assert run_all.main(base + ["--out", out, "--set", "n_test=3"]) == 2
+    assert "budget n_test (2 there, 3 now)" in capsys.readouterr().err
+    for bad, words in (("nope=1", "FIELD one of"), ("n_test=abc", "not a value of type int"),
+                       ("n_test=0", "must be >= 1"), ("ges_warm_start=maybe", "type bool")):
+        assert run_all.main(base + ["--out", str(tmp_path / "bad"), "--set", bad]) == 2
+        assert words in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    monkeypatch.setattr(cli, "calibrate", lambda job, ex, workers, batch: ex.shutdown() or {
+        "workers": workers, "jobs": ["mlp obstacle"] * workers, "train_rate": 400.0, "score_rate": 300.0,
+        "seconds": 1.0, "time": "now", "cpu": "test CPU", "batch": list(batch)})
+    plans = []
+    for steps in ("380000", "760000"):
+        assert run_all.main(["--preset", "quick", "--plan", "--set", f"ppo_steps={steps}", "--workers", "2",
+                             "--out", str(tmp_path / "p")]) == 0
+        plans.append(float(re.search(r"total +([\d.]+) h", capsys.readouterr().out).group(1)))
+    assert plans[1] > plans[0]
+
+
 @pytest.mark.slow
 def test_run_all_ges_score_is_the_density_router(smoke_run):
     """GES's J in the pipeline: each design is routed like GESResult.route (paper eq. 10) and played by that

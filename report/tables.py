@@ -79,7 +79,10 @@ def report_header(p, seed: int, commit: str, manifest: dict) -> list:
             f"(facts: 50{'' if p.ges_init_designs == 50 else '; ours: coverage growth is set by F / n_init'}), "
             f"target coverage {p.ges_target_coverage:.0%}, "
             f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
-            f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}", ""]
+            f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}"] + (
+        ["- overridden from the command line (`--set`): " + ", ".join(f"{k}={v}" for k, v in
+                                                                       manifest["overrides"].items())]
+        if manifest.get("overrides") else []) + [""]
 
 
 def score_text(p) -> str:

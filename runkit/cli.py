@@ -11,7 +11,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Callable
 
 from runkit.clock import StageClock, stage_times
@@ -125,6 +125,42 @@ def calibration(run, rate_job=None) -> dict | None:
 # ----------------------------------------------------------------------------------------------------------
 # The command line: check the arguments and the output folder, run the stages, write the report
 # ----------------------------------------------------------------------------------------------------------
+def override(preset, items: list):
+    """The preset with `--set FIELD=VALUE` overrides applied (value typed by the field: int, float, str, bool,
+    tuple as comma-separated values, `none` where the field may be None); BadInput names a bad field or value."""
+    kinds = {f.name: str(f.type) for f in fields(preset) if f.name != "name"}
+    changes = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        if not eq or name not in kinds:
+            raise BadInput(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {', '.join(kinds)}")
+        kind = kinds[name]
+        try:
+            if text.lower() == "none" and "None" in kind:
+                value = None
+            elif kind.startswith("tuple"):
+                value = tuple(_scalar(v) for v in text.split(",") if v)
+            elif kind.startswith("bool"):
+                value = {"true": True, "false": False}[text.lower()]
+            else:
+                value = {"int": int, "float": float, "str": str}[kind.split()[0]](text.replace("_", ""))
+        except (ValueError, KeyError):
+            raise BadInput(f"--set {name}={text!r}: not a value of type {kind}") from None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value < (0 if "level" in name else 1):
+            raise BadInput(f"--set {name}={text}: must be >= {0 if 'level' in name else 1}")
+        changes[name] = value
+    return replace(preset, **changes), changes
+
+
+def _scalar(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
 def parse(argv, exp: Experiment):
     ap = argparse.ArgumentParser(description=exp.description)
     ap.add_argument("--preset", default=exp.default_preset, choices=tuple(exp.presets),
@@ -136,6 +172,9 @@ def parse(argv, exp: Experiment):
                     "e2e MLP and MoE on each task, --workers side by side, each training 40,960 PPO steps and "
                     "scoring 3 designs (~4 min), beside the constants a run without calibration is planned at")
     ap.add_argument("--only", default="", help=f"comma-separated stages out of {','.join(exp.stages)}")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override one budget of the preset, e.g. --set n_test=10 --set ksens_K=1,3 (repeatable; "
+                         "kept in the manifest and REPORT.md; a resumed run with other values is refused)")
     ap.add_argument("--out", default=None, help="output folder (default: results/<preset>)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     ap.add_argument("--seed", type=int, default=0)
@@ -194,6 +233,7 @@ def main(argv, exp: Experiment) -> int:
     preset = exp.presets[args.preset]
     out = os.path.abspath(args.out or os.path.join(exp.home, "results", preset.name))
     try:
+        preset, overrides = override(preset, args.set)
         if args.workers < 1:
             raise BadInput(f"--workers {args.workers} must be >= 1")
         stop_by = stop_time(args.stop_by) if args.stop_by else None
@@ -209,6 +249,7 @@ def main(argv, exp: Experiment) -> int:
         stages = check_args(args, exp)
         manifest = {"tool": exp.tool, "results_format": exp.results_format, "preset": preset.name,
                     "budgets": json.loads(json.dumps(asdict(preset))), "seed": args.seed,
+                    **({"overrides": json.loads(json.dumps(overrides))} if overrides else {}),
                     "code_hash": code_hash(exp.home, exp.numbers, exp.results_format),
                     "git_commit": git_commit(exp.home), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
         reuse = check_output(out, manifest, args.fresh)

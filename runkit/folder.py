@@ -54,12 +54,13 @@ def check_output(out: str, manifest: dict, fresh: bool) -> bool:
     if fresh:   # ours (it has a manifest.json), wiped whatever that file holds
         return False
     old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
-    keys = ("results_format", "preset", "budgets", "seed", "code_hash")
-    diff = [k for k in keys if old.get(k) != manifest[k]]
-    if diff and not fresh:
-        raise BadInput(f"{out} holds results of a different " + ", ".join(
-            f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" if k != "budgets" else "budgets"
-            for k in diff) + "; rerun with --fresh to start over or choose another --out")
+    keys = ("results_format", "preset", "seed", "code_hash")
+    diff = [f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" for k in keys if old.get(k) != manifest[k]]
+    was, now = old.get("budgets") or {}, manifest["budgets"]
+    diff += [f"budget {k} ({was[k]!r} there, {now[k]!r} now)" for k in now if k in was and was[k] != now[k]]
+    if diff:   # a budget a folder's older code did not have is the default it ran with
+        raise BadInput(f"{out} holds results of a different " + ", ".join(diff)
+                       + "; rerun with --fresh to start over or choose another --out")
     return not fresh
 
 
