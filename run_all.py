@@ -1,7 +1,7 @@
 """run_all.py -- one command that regenerates every table and figure of the GES paper with our code.
 
     python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S]
-                      [--fresh] [--executor process|dask [--scheduler ADDRESS]]
+                      [--fresh] [--set FIELD=VALUE ...] [--executor process|dask [--scheduler ADDRESS]]
     python run_all.py --plan [--out DIR] | --rates [--preset P] [--workers N]   # hours on this machine / rates
 
 Read top to bottom, the paper's experiments section in order:
@@ -25,10 +25,8 @@ Read top to bottom, the paper's experiments section in order:
   6. machinery: derived seeds, work files and their repair, the files the code hash covers and a Dask cluster
      gets, the job --rates and a calibration time
   7. the command line: this experiment as runkit.cli runs it
-Machinery that knows nothing of BALLU or GES (progress and the one ETA formula, atomic JSON and damaged files,
-the training log, the output folder and the code hash, the stage clock, Dask, the process pool and jobs side by
-side, statistics, what a preset costs: --plan's arithmetic, its calibration, --rates' measurement; and the command
-line of a run made of stages, each run once) lives in runkit/.
+Machinery that knows nothing of BALLU or GES (progress, files, the output folder, pools, statistics, --plan's
+arithmetic, the command line of a run made of stages) lives in runkit/; the figures and tables' Markdown in report/.
 Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see runkit.cli.kill_hook) to simulate a kill.
 
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
@@ -362,27 +360,21 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
                score_start_level=2, probe_level_steps=(2,), peak_episodes=2, ksens_auto=True,
                ksens_auto_K=2, episode_steps=100)
 
-# quick: every table and figure in ~2-3 h on 2 cores (`--plan`: 2.79 h at the calibration in docs/quick, which
-# took 2.73 h): 380k PPO steps per policy (the e2e MLP's level climbs steeply to there: docs/ppo_protocol);
-# specialists warm-start from their cell's e2e MLP (ges_warm_start, ours) and train 150k steps in round 0 (a
-# territory measurably helps from ~200k, docs/ges_lanes; 150k is what fits), 10k in round 1, the last (2 rounds,
-# F = 3). The time came from what 18-20 test designs cannot resolve anyway: Table III runs grid against FPS +
-# Lloyd only, Fig. 7 K = 1 and 3; and from 18 test designs, TPE searches of 4 trials, 2 per-design BO trials, no
-# 30-episode rescore of the TPE peaks. ges_init_designs = 2 (ours; facts: 50): coverage grows with F / n_init
-# (`python ges.py --sweep`). What each stage buys, in hours and centimetres: docs/presets.md.
+# quick: every table and figure in a few hours on 2 cores (README; `--plan`): 380k PPO steps per policy (where
+# the e2e MLP's steep climb ends); specialists warm-start from their cell's e2e MLP (ours) and train 150k steps in
+# round 0 (a territory helps from ~200k: docs/ges_lanes), 10k in round 1, the last (F = 3, n_init = 2, ours:
+# coverage grows with F / n_init, `python ges.py --sweep`); 18 test designs; Table III grid vs FPS + Lloyd, Fig. 7
+# K = 1 and 3, 4 TPE trials, 2 BO trials: what 18 designs cannot resolve anyway. Each budget's why: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=18, tpe_trials=4, tpe_startup=2, ges_max_rounds=2, ges_probes=3,
                ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000, ksens_K=(1, 3),
                cost_trials=2, ges_warm_start=True, table3_inits=("grid", "fps+lloyd"),
                ges_first_round_steps=150_000)
 
-# overnight: one night on 2 cores (`--plan`: 9.3 h at quick's calibration in docs/quick, 10.7 h at a slower hour's,
-# every GES run at its round cap): 800k PPO steps per policy (the e2e MLP reaches 22.5 cm at 1 M, 24.3 at 2 M:
-# docs/ppo_protocol); specialists warm-start from it and train 600k steps in round 0 (one design's J still climbs
-# there: the night's steps buy most in the specialists), 100k in each later one, to 95 % coverage or 3 rounds
-# (facts: 20) with F = 10. The time came from what 40 test designs do not resolve either (as in quick): Table III
-# grid against FPS + Lloyd, Fig. 7 K = 1 and 3 (the paper's peak and one end), 2 per-design BO trials; 40 test
-# designs, 20 TPE trials (paper: 40). The numbers behind each: docs/presets.md.
+# overnight: one night on 2 cores: 800k PPO steps per policy (docs/ppo_protocol); specialists warm-start from it
+# and train 600k steps in round 0 (one design's J still climbs there), 100k in each later one, to 95 % coverage or
+# 3 rounds (facts: 20) with F = 10; 40 test designs, 20 TPE trials (paper: 40); Table III and Fig. 7 as quick's.
+# Each budget's why: docs/presets.md.
 OVERNIGHT = Preset("overnight", ppo_steps=800_000, ges_round_steps=100_000, ppo_envs=32, ppo_rollout=64,
                    score_episodes=20, n_test=40, tpe_trials=20, tpe_startup=10, ges_max_rounds=3, ges_probes=10,
                    ges_probe_pool=2000, ges_init_designs=2, ges_n_mc=10_000, ges_fps_pool=10_000,

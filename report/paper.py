@@ -1,4 +1,6 @@
-"""The paper's numbers, quoted from paper/ges_paper.tex ("None" = the paper gives no number), and its names."""
+"""The paper's numbers ("None" = the paper gives no number) and its names, quoted from its tables, figures and
+text: "Rapid co-design of Buoyancy-assisted robots for Challenging Locomotion using Gaussian Evolutionary
+Specialists" (Sinha, Sontakke, Hong, Tanaka and Ha)."""
 
 # Table I "BALLU morphology parameters": (lower, upper, baseline)
 PAPER_TABLE1 = {"l_f": (0.25, 0.55, 0.45), "l_t": (0.25, 0.55, 0.45), "gcr": (0.72, 0.90, 0.70),

@@ -56,8 +56,8 @@ def report_header(p, seed: int, commit: str, manifest: dict) -> list:
     bcfg = ballu.BalluConfig()
     return [f"# ballu-ges: the paper's tables and figures, regenerated (preset `{p.name}`)", "",
             "Every cell is **ours (paper)**. Paper numbers are constants in report/paper.py quoted from "
-            "paper/ges_paper.tex; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, the "
-            "budgets below). '-' = not measured yet / not given by the paper.", "",
+            "the paper's tables and text; ours are only what this run measured (PyBullet BALLU, our PPO/GES/TPE, "
+            "the budgets below). '-' = not measured yet / not given by the paper.", "",
             f"- seed {seed}; git commit {commit} (results folder created at {manifest['git_commit']}); "
             f"code hash {manifest['code_hash']}",
             f"- MDP: the policies observe `obs={bcfg.obs!r}` ("
