@@ -1071,7 +1071,11 @@ EXPERIMENT = Experiment(tool="run_all.py", description="Regenerate every table a
 
 def main(argv=None) -> int:
     """`python run_all.py ...` (runkit.cli.main): exit code 0; 2 on bad input, before anything is written; 3 when
-    --stop-by stopped the run."""
+    --stop-by stopped the run. `python run_all.py watch|score ...`: use what a run trained (experiments/use.py)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] in (["watch"], ["score"]):
+        from experiments import use
+        return use.main(argv)
     return cli.main(argv, EXPERIMENT)
 
 

@@ -30,8 +30,8 @@ import ballu
 import ges
 import ppo
 import run_all
-from experiments import ballu_capability, ges_demo, ppo_ballu, ppo_protocol, probe_agreement
-from report import figures, tables
+from experiments import ballu_capability, ges_demo, ppo_ballu, ppo_protocol, probe_agreement, use
+from report import animate, figures, tables
 from runkit import cli, logs, plan, pool, progress
 from runkit import stats as rstats
 from runkit.clock import StageClock
@@ -3525,3 +3525,185 @@ def test_run_all_what_a_user_sees(smoke_run, capsys):
     t3 = [line for line in rep if line.startswith("| fps+lloyd |")][0].split(" | ")
     assert re.fullmatch(r"\d+\.\d \(24\)", t3[2]) and re.fullmatch(r"\d+\.\d \(52\)", t3[3]), t3
     assert any("l = l_f = l_t" in line for line in rep)
+
+# ----------------------------------------------------------------------------------------------------------
+# Use what a run trained: `python run_all.py watch|score` (experiments/use.py, report/animate.py). Each test
+# plays at most a few short episodes of a committed run (docs/quick, docs/overnight/seed0).
+# ----------------------------------------------------------------------------------------------------------
+USE_HERE = os.path.dirname(os.path.abspath(__file__))
+QUICK_RUN, SEED0_RUN = os.path.join(USE_HERE, "docs", "quick"), os.path.join(USE_HERE, "docs", "overnight", "seed0")
+MLP_OBST = os.path.join(QUICK_RUN, "policies", "mlp-obstacle-d2", "policy.pt")   # quick keeps no _best
+
+
+def use_main(capsys, *argv) -> tuple:
+    """(exit code, stdout, stderr) of `python run_all.py argv...` (watch and score: experiments/use.py)."""
+    code = run_all.main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+# --- designs and levels -------------------------------------------------------------------------------------
+def test_use_design_arg_forms():
+    d2, d3 = ballu.d2("obstacle"), ballu.d3("ramp")
+    opt = use.design_arg("optimum", d2)
+    assert opt.full.tolist() == [0.45, 0.45, 0.88, 0.008] and opt.theta.tolist() == [0.88, 0.008]
+    assert use.design_arg("optimum", d3).theta.tolist() == [0.88, 0.008, 0.45]   # l: the baseline's legs
+    assert use.design_arg("baseline", d2).full.tolist() == ballu.BASELINE.tolist()   # outside the box, allowed
+    d = use.design_arg(" gcr=0.8, spcf=0.01 ", d2)
+    assert d.full.tolist() == [0.45, 0.45, 0.8, 0.01]
+    assert use.design_arg("gcr=0.8,spcf=0.01,l=0.3", d3).full.tolist() == [0.3, 0.3, 0.8, 0.01]
+    assert use.design_arg("l_f=0.45,l_t=0.45,gcr=0.8,spcf=0.01", d2).full.tolist() == d.full.tolist()
+
+
+@pytest.mark.parametrize("text, words", [
+    ("gcr=0.95,spcf=0.01", ["gcr=0.95", "allowed range [0.72, 0.9]"]),
+    ("spcf=0.01", ["gcr=0.7", "not given", "[0.72, 0.9]"]),
+    ("gcr=0.8,spcf=2", ["spcf=2", "[0.001, 0.1]"]),
+    ("mass=3", ["'mass=3'", "gcr", "optimum"]),
+    ("gcr=high", ["'gcr=high'"]),
+    ("gcr=0.8,l_f=0.3", ["l_f is not free", "0.45"]),
+    ("", ["is not name=value"]),
+])
+def test_use_design_arg_errors(text, words):
+    with pytest.raises(use.UseError) as e:
+        use.design_arg(text, ballu.d2("obstacle"))
+    msg = str(e.value)
+    assert "\n" not in msg and all(w in msg for w in words), msg
+
+
+def test_use_designs_file(tmp_path):
+    space = ballu.d2("obstacle")
+    f = tmp_path / "d.csv"
+    f.write_text("label,gcr,spcf\nlow,0.75,0.005\n,0.85,0.02\n")
+    ds = use.designs_file(str(f), space)
+    assert [d.label for d in ds] == ["low", "gcr=0.85,spcf=0.02"] and ds[0].full.tolist() == [0.45, 0.45, 0.75, 0.005]
+    f.write_text("gcr,spcf\n0.8,0.01\n0.99,0.01\n")
+    with pytest.raises(use.UseError, match=r"line 3: .*gcr=0.99.*allowed range"):
+        use.designs_file(str(f), space)
+    with pytest.raises(use.UseError, match="no such file"):
+        use.designs_file(str(tmp_path / "none.csv"), space)
+
+
+def test_use_level_arg():
+    q = use.run_of(QUICK_RUN).preset
+    assert use.level_arg(None, None, "obstacle", q) == 28 and use.level_arg(None, None, "ramp", q) == 40
+    assert use.level_arg(None, 30.1, "obstacle", q) == 30 and use.level_arg(None, 30, "obstacle", q) == 30
+    deg = float(ballu.level_score("ramp", 33))
+    assert use.level_arg(None, deg + 0.1, "ramp", q) == 33
+    for level, height in ((75, None), (-1, None), (None, 80.0)):
+        with pytest.raises(use.UseError, match="allowed range"):
+            use.level_arg(level, height, "obstacle", q)
+
+
+# --- policies -----------------------------------------------------------------------------------------------
+def test_use_resolve_policies():
+    t = use.resolve([QUICK_RUN, "mlp", "obstacle-d2"])
+    assert t.preset.name == "quick" and t.policy is not None and t.space.names == ("gcr", "spcf")
+    assert use.resolve([MLP_OBST, "obstacle-d2"]).preset.name == "quick"   # the run folder it lies in
+    g = use.resolve([SEED0_RUN, "ges", "obstacle-d2"])
+    assert g.preset.name == "overnight" and len(g.ges.ckpt) == 3
+    assert g.ges.run_dir.endswith(os.path.join("ges", "obstacle-d2-K3-fps-lloyd"))   # Table II's main GES run
+    assert all(os.path.exists(ppo.scored_path(c)) for c in g.ges.ckpt)
+    assert use.resolve([SEED0_RUN, "mlp_matched", "ramp-d3"]).policy is not None
+
+
+@pytest.mark.parametrize("argv, words", [
+    ([QUICK_RUN, "mlp", "obstacle-d4"], ["cell 'obstacle-d4'", "obstacle-d2"]),
+    ([QUICK_RUN, "ppo", "obstacle-d2"], ["method 'ppo'", "mlp_matched"]),
+    ([QUICK_RUN, "mlp_matched", "obstacle-d2"], ["no mlp_matched policy"]),
+    (["/nonexistent", "mlp", "obstacle-d2"], ["not a run_all output folder"]),
+    ([os.path.join(QUICK_RUN, "policies", "mlp-ramp-d2", "policy.pt"), "obstacle-d2"], ["the ramp task", "not obstacle"]),
+    (["/nonexistent.pt", "obstacle-d2"], ["does not exist"]),
+])
+def test_use_bad_input_is_one_line(capsys, argv, words):
+    code, out, err = use_main(capsys, "score", *argv, "--episodes", "1")
+    assert code == 2 and err.count("\n") == 1 and all(w in err for w in words), err
+
+
+def test_use_ges_routes_as_ges_route():
+    t = use.resolve([SEED0_RUN, "ges", "obstacle-d2"])
+    rng = np.random.default_rng(0)
+    theta = t.space.sample_uniform(rng, 12)
+    mine = [use.route(t.ges, th)[0] for th in theta]
+    assert mine == t.ges.route(theta).tolist()
+    assert mine == ges.route(t.ges.space.to_unit(theta), t.ges.mu_unit, t.ges.sigma_unit).tolist()
+    assert len(set(mine)) > 1   # the sample reaches several territories
+
+
+# --- score --------------------------------------------------------------------------------------------------
+def test_use_score_equals_ballu_score():
+    t = use.resolve([QUICK_RUN, "mlp", "obstacle-d2"], workers=1)
+    d = use.design_arg("gcr=0.8,spcf=0.01", t.space)
+    row = use.score(t, [d], episodes=3, workers=1)[0]
+    j, x = ballu.score(ppo.load_policy(MLP_OBST), d.full, "obstacle", episodes=3, start_level=28, final_x=True)
+    assert row["J"] == float(j[0]) and row["x"] == [float(v) for v in x[0]]
+    assert row["walk_ok"] and row["levels"][0] == 28 and len(row["levels"]) == 3
+
+
+def test_use_ges_score_picks_the_routed_specialist():
+    t = use.resolve([SEED0_RUN, "ges", "obstacle-d2"], workers=1)
+    d = use.design_arg("optimum", t.space)
+    row = use.score(t, [d], episodes=2, workers=1)[0]
+    k = int(t.ges.route(d.theta)[0])
+    assert row["specialist"] == k
+    assert row["log_density"] == pytest.approx(ges.log_density(t.ges.space.to_unit(d.theta[None]), t.ges.mu_unit,
+                                                               t.ges.sigma_unit)[0, k])
+    j = ballu.score(ppo.load_policy(ppo.scored_path(t.ges.ckpt[k])), d.full, "obstacle", episodes=2, start_level=28)
+    assert row["J"] == float(j[0])
+
+
+def test_use_score_command_writes_csv(tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    code, text, _ = use_main(capsys, "score", QUICK_RUN, "mlp", "obstacle-d2", "--design", "optimum", "--design",
+                             "baseline", "--episodes", "2", "--workers", "1", "--out", out)
+    assert code == 0 and "J " in text and str(out) in text
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith("design,l_f,l_t,gcr,spcf,J_cm") and len(lines) == 3
+    assert lines[2].startswith("baseline,0.45,0.45,0.7,0.002")
+
+
+# --- watch --------------------------------------------------------------------------------------------------
+def test_use_watch_renders_a_gif(tmp_path, capsys):
+    from PIL import Image
+    out = tmp_path / "a.gif"
+    code, text, _ = use_main(capsys, "watch", QUICK_RUN, "mlp", "obstacle-d2", "--design", "optimum", "--max-steps", "9",
+                             "--every", "4", "--size", "160x120", "--out", out)
+    assert code == 0 and out.exists() and str(out) in text
+    with Image.open(out) as im:
+        assert im.n_frames > 1 and im.size == (160, 120 + animate.HEADER)
+
+
+def test_use_watch_side_by_side(tmp_path, capsys):
+    from PIL import Image
+    out = tmp_path / "vs.gif"
+    code, text, _ = use_main(capsys, "watch", SEED0_RUN, "ges", "obstacle-d2", "--vs", "mlp", "--max-steps", "5",
+                             "--size", "120x90", "--out", out)
+    assert code == 0 and "specialist" in text
+    with Image.open(out) as im:
+        assert im.size == (240, 90 + animate.HEADER) and im.n_frames > 1
+
+
+def test_use_watch_plays_the_episode_J_plays():
+    """The film's episode is J's episode at that level: the same final x."""
+    t = use.resolve([QUICK_RUN, "mlp", "obstacle-d2"], workers=1)
+    d = use.design_arg("gcr=0.85,spcf=0.03", t.space)
+    pol, _ = use.play(t, d)
+    f = animate.film(pol, "obstacle", d.full, 28, t.preset.env_config(ballu.policy_config(pol, "obstacle")),
+                     every=100, size=(64, 48))
+    row = use.score(t, [d], episodes=1, workers=1)[0]
+    assert f["final_x"] == row["x"][0] and len(f["frames"]) == 5
+
+
+def test_use_watch_mp4_needs_ffmpeg(tmp_path, capsys):
+    if shutil.which("ffmpeg"):
+        pytest.skip("ffmpeg is installed")
+    code, _, err = use_main(capsys, "watch", QUICK_RUN, "mlp", "obstacle-d2", "--max-steps", "2", "--out",
+                            tmp_path / "a.mp4")
+    assert code == 2 and "ffmpeg" in err and err.count("\n") == 1
+
+
+def test_use_help_lists_examples(capsys):
+    for argv in ([], ["watch"], ["score"]):
+        with pytest.raises(SystemExit) as e:
+            use.main(argv + ["--help"])
+        assert e.value.code == 0 and "examples:" in capsys.readouterr().out

@@ -1,0 +1,414 @@
+"""experiments/use.py -- use what a run trained: watch a policy or GES on any design, score it on any designs.
+
+    python run_all.py watch docs/overnight/seed0 ges obstacle-d2 --design optimum --level 30 --out anim.gif
+    python run_all.py watch docs/overnight/seed0 ges obstacle-d2 --vs mlp --design optimum
+    python run_all.py score docs/quick mlp ramp-d3 --design gcr=0.8,spcf=0.01 --design baseline
+    python run_all.py score docs/quick/policies/mlp-obstacle-d2/policy.pt obstacle-d2 --designs d.csv
+
+Contents:
+  1. designs, one rule for every command line: `design_arg` ("gcr=0.86,spcf=0.008", "optimum", "baseline"),
+     `designs_file` (a CSV with a header of names), `level_arg` (--level, or --height in cm / deg)
+  2. policies, one rule: `resolve` (RUN METHOD CELL, or CHECKPOINT CELL, or GES-RUN-FOLDER CELL); `play`, the policy
+     a design is played by (GES: the density router, paper eq. 10)
+  3. `score`: J per design as the run scores it (run_all.score_policy), each episode's level and final x
+  4. watch: one episode filmed (report/animate.py), alone or beside another method's
+  5. the command line
+
+A run decides how it is scored (episodes, start level, episode length, which checkpoint: the preset its manifest
+names) and its GES is the cell's main run (run_all.Run.main_ges, the one Table II scores). Deterministic:
+ballu.score's episodes start from reset seed 0, and so does a film. Bad input: one line, exit code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import time
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+import ballu
+import ges
+import ppo
+import run_all
+from report import animate
+from report.figures import level_of
+from runkit.files import BadInput, read_json
+
+# ----------------------------------------------------------------------------------------------------------
+# 1. Designs and levels
+# ----------------------------------------------------------------------------------------------------------
+NAMED = {"baseline": dict(zip(ballu.DESIGN_NAMES, ballu.BASELINE.tolist())),   # [paper] Table I; gcr 0.70 outside
+         "optimum": {"gcr": 0.88, "spcf": 0.008}}   # [paper] Sec. V-C, GES's optimum on the obstacle (D2)
+FILL = dict(zip(ballu.DESIGN_NAMES, ballu.BASELINE.tolist()), l=float(ballu.BASELINE[0]))   # names not given [ours]
+METHODS = {"ges": "GES", "mlp": "e2e MLP", "moe": "e2e MoE", "mlp_matched": "e2e MLP (step-matched)",
+           "baseline": "baseline design's policy"}
+
+
+class UseError(BadInput):
+    """Bad input: one line naming the value and what is allowed."""
+
+
+@dataclass
+class Design:
+    label: str
+    theta: np.ndarray   # the space's own coordinates (GES routes them)
+    full: np.ndarray    # (l_f, l_t, gcr, spcf): what a lane receives
+
+
+def design_arg(text: str, space) -> Design:
+    """A design of `space` from 'name=value,...' or a name of NAMED. Names not given take ballu.BASELINE's values;
+    a name the space fixes (D2's legs) is accepted at its value only. The box is enforced except for 'baseline',
+    the paper's reference robot (gcr 0.70, below Table I's 0.72), scored as Table II's baseline column scores it."""
+    text = text.strip()
+    given = dict(NAMED.get(text, {}))
+    for part in [] if text in NAMED else [p for p in text.split(",") if p.strip()] or [""]:
+        name, eq, value = (s.strip() for s in part.partition("="))
+        try:
+            if not eq or name not in ballu.SPACE_NAMES:
+                raise ValueError
+            given[name] = float(value)
+        except ValueError:
+            raise UseError(f"design {text!r}: {part.strip()!r} is not name=value with a name of {space.names} "
+                           f"(or a design name: {', '.join(NAMED)})") from None
+    theta = np.array([given.get(n, FILL[n]) for n in space.names])
+    for n, v, lo, hi in zip(space.names, theta, space.lows, space.highs):
+        if text != "baseline" and not lo <= v <= hi:
+            why = "" if n in given else " (the baseline's, not given)"
+            raise UseError(f"design {text!r}: {n}={v:g}{why} is outside {space.task} D{space.d}: allowed range "
+                           f"[{lo:g}, {hi:g}]")
+    full = ballu.BASELINE.astype(float) if text == "baseline" else space.full(theta)[0]
+    implied = dict(zip(ballu.DESIGN_NAMES, full), l=full[0] if full[0] == full[1] else None)
+    for n, v in given.items():
+        if n not in space.names and (implied[n] is None or abs(implied[n] - v) > 1e-9):
+            raise UseError(f"design {text!r}: {n} is not free in {space.task} D{space.d} (free: "
+                           f"{', '.join(space.names)}; {n} = {implied[n]} there)")
+    return Design(text, theta, full)
+
+
+def designs_file(path: str, space) -> list:
+    """Designs from a CSV: a header of parameter names (and optionally `label`), a design a row (design_arg)."""
+    if not os.path.isfile(path):
+        raise UseError(f"--designs {path}: no such file")
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise UseError(f"--designs {path}: no designs (a header such as {','.join(space.names)}, a design a row)")
+    out = []
+    for i, row in enumerate(rows):
+        label = (row.pop("label", "") or "").strip()
+        try:
+            out.append(design_arg(",".join(f"{k}={v}" for k, v in row.items()), space))
+        except UseError as e:
+            raise UseError(f"--designs {path} line {i + 2}: {e}") from None
+        out[-1].label = label or out[-1].label
+    return out
+
+
+def start_level(task: str, preset) -> int:
+    """The level J starts from: the task's [facts], or the preset's (smoke)."""
+    return ballu.SCORE_START_LEVEL[task] if preset.score_start_level is None else preset.score_start_level
+
+
+def level_arg(level, height, task: str, preset) -> int:
+    """--level (0..74) or --height in cm / deg -> the nearest level (report.figures.level_of); default J's start."""
+    ends = ballu.level_score(task, [0, ballu.MAX_LEVEL])
+    if height is not None:
+        if not ends[0] - 0.5 <= height <= ends[1] + 0.5:
+            raise UseError(f"--height {height:g}: allowed range [{ends[0]:.1f}, {ends[1]:.1f}] {run_all.UNIT[task]}")
+        return level_of(task, height)
+    if level is not None and not 0 <= level <= ballu.MAX_LEVEL:
+        raise UseError(f"--level {level}: allowed range [0, {ballu.MAX_LEVEL}]")
+    return start_level(task, preset) if level is None else level
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 2. Policies: RUN METHOD CELL, or CHECKPOINT CELL, or GES-RUN-FOLDER CELL
+# ----------------------------------------------------------------------------------------------------------
+@dataclass
+class Target:
+    """What plays a cell: a single policy (ppo.PolicyFn) or a GES run (ges.GESResult), scored by `preset`."""
+    method: str
+    task: str
+    sp: str
+    space: object
+    preset: object
+    where: str   # the run folder or the path given
+    policy: object = None
+    ges: object = None
+
+
+RUN_FILES = ("manifest.json", "results.json")   # a run_all folder's manifest: a live run's, a committed one's
+
+
+def run_above(path: str) -> str | None:
+    """The run folder holding a checkpoint (policies/<name>/x.pt) or a GES run (ges/<name>/[ckpt/x]), if any."""
+    up = [os.path.abspath(path)]
+    for _ in range(4):
+        up.append(os.path.dirname(up[-1]))
+    return next((d for d in up[1:] if any(os.path.isfile(os.path.join(d, f)) for f in RUN_FILES)), None)
+
+
+def run_of(folder: str, workers: int = 2):
+    """run_all.Run of an output folder: the preset its manifest names (manifest.json of a live run, results.json's
+    of a committed one) with the budgets it recorded (a field added since keeps today's default)."""
+    path = next((os.path.join(folder, f) for f in RUN_FILES if os.path.isfile(os.path.join(folder, f))), None)
+    if path is None:
+        raise UseError(f"{folder}: not a run_all output folder (no manifest.json or results.json)")
+    man = read_json(path)
+    man = man.get("manifest", man)
+    if man.get("preset") not in run_all.PRESETS:
+        raise UseError(f"{path}: unknown preset {man.get('preset')!r} (known: {', '.join(run_all.PRESETS)})")
+    known = {f.name for f in fields(run_all.Preset)}
+    budgets = {k: tuple(v) if isinstance(v, list) else v for k, v in man.get("budgets", {}).items() if k in known}
+    return run_all.Run(folder, replace(run_all.PRESETS[man["preset"]], **budgets), int(man.get("seed", 0)), workers)
+
+
+def load_ges(run_dir: str, preset) -> ges.GESResult:
+    """A GES run's final territories and specialists: run_all.load_ges (state.json) in a run's own folder; in a
+    committed one, history.json's last entry (the same mu, sigma and checkpoints; each specialist's last
+    checkpoint kept beside it, without ckpt/)."""
+    if os.path.isfile(os.path.join(run_dir, ges.STATE_FILE)):
+        return run_all.load_ges(run_dir)
+    if not os.path.isfile(os.path.join(run_dir, ges.HISTORY_FILE)):
+        raise UseError(f"{run_dir}: no GES run there (no {ges.STATE_FILE} or {ges.HISTORY_FILE}); a run folder "
+                       f"takes RUN METHOD CELL")
+    h = read_json(os.path.join(run_dir, ges.HISTORY_FILE))
+    last, known = h["rounds"][-1], {f.name for f in fields(ges.GESConfig)}
+    ckpt = [os.path.join(run_dir, c if os.path.exists(ppo.scored_path(os.path.join(run_dir, c), preset.policy_rule))
+                         else os.path.basename(c)) for c in last["ckpt"]]
+    config = ges.GESConfig(**{k: v for k, v in h["config"].items() if k in known})
+    return ges.GESResult(
+        space=ges.Box.from_dict(h["space"]), config=config, seed=h["seed"], run_dir=run_dir,
+        mu_unit=np.array(last["mu_unit"]), sigma_unit=np.array(last["sigma_unit"]), mu=np.array(last["mu"]),
+        sigma=np.array(last["sigma"]), ckpt=ckpt, history=h, rounds=last["round"], coverage=last["coverage"],
+        ids=last.get("ids", list(range(len(ckpt)))))
+
+
+def check_fits(policy, task: str, what: str):
+    """The policy, if it observed what this task's env gives (ballu.policy_config); else a one-line error."""
+    def fits(t):
+        try:
+            return ballu.policy_config(policy, t) is not None
+        except ValueError:
+            return False
+    if not fits(task):
+        other = [t for t in ballu.TASKS if t != task and fits(t)]
+        raise UseError(f"{what} is a policy of the {other[0]} task (its observation), not {task}" if other else
+                       f"{what} observed another observation set than {task}'s envs give")
+    return policy
+
+
+def resolve(words: list, method: str | None = None, workers: int = 2) -> Target:
+    """RUN METHOD CELL: that run's policy (its scored checkpoint, run_all.load_policy) or main GES run. CHECKPOINT
+    CELL or GES-RUN-FOLDER CELL: that one, scored by the preset of the run folder it lies in, else quick's (the
+    facts' J: 20 episodes from the task's start level) [ours]. `method` replaces the words' (--vs)."""
+    cells = [f"{t}-{s}" for t in run_all.TASKS for s in run_all.SPACES]
+    if len(words) not in (2, 3) or words[-1] not in cells:
+        raise UseError(f"cell {words[-1]!r}: one of {', '.join(cells)}" if len(words) in (2, 3) else
+                       f"give RUN METHOD CELL or CHECKPOINT CELL, not {' '.join(words)!r}")
+    (task, sp), where = words[-1].split("-"), words[0]
+    if len(words) == 2:
+        up = run_above(where)
+        preset = run_of(up).preset if up else run_all.QUICK
+        t = Target("ges" if os.path.isdir(where) else "checkpoint", task, sp, run_all.space_of(preset, task, sp),
+                   preset, where)
+        if os.path.isdir(where):
+            return replace(t, ges=load_ges(where, preset))
+        try:
+            return replace(t, policy=check_fits(ppo.load_policy(where), task, where))
+        except (ValueError, FileNotFoundError) as e:   # ppo.load_checkpoint's one line
+            raise UseError(str(e)) from None
+    run, method = run_of(where, workers), method or words[1]
+    if method not in METHODS:
+        raise UseError(f"method {method!r}: one of {', '.join(METHODS)}")
+    t = Target(method, task, sp, run_all.space_of(run.preset, task, sp), run.preset, where)
+    if method == "ges":
+        return replace(t, ges=load_ges(run.path("ges", run.main_ges(task, sp)), run.preset))
+    name = f"baseline-{task}" if method == "baseline" else f"{method}-{task}-{sp}"
+    if not os.path.exists(ppo.scored_path(run_all.policy_ckpt(run, name), run.preset.policy_rule)):
+        raise UseError(f"{where}: no {method} policy for {task}-{sp} (policies/{name}/ has no checkpoint)")
+    return replace(t, policy=check_fits(run_all.load_policy(run, method, task, sp), task, f"policies/{name}"))
+
+
+def route(res, theta) -> tuple:
+    """Paper eq. 10 (ges.route): the specialist of highest Gaussian density at theta, and each one's log density
+    (unit cube). Not GESResult.route, which refuses designs outside the box, as the baseline is."""
+    x = res.space.to_unit(np.atleast_2d(np.asarray(theta, float)))
+    return int(ges.route(x, res.mu_unit, res.sigma_unit)[0]), ges.log_density(x, res.mu_unit, res.sigma_unit)[0]
+
+
+def play(t: Target, design: Design) -> tuple:
+    """(policy, what it is) for one design: the single policy, or the specialist the router picks."""
+    if t.ges is None:
+        return t.policy, METHODS.get(t.method, t.where)
+    k, logd = route(t.ges, design.theta)
+    pol = check_fits(run_all.load_ges_ckpt(t.ges.ckpt[k], t.preset), t.task, t.ges.ckpt[k])
+    return pol, f"GES: specialist {t.ges.ids[k]} of {len(logd)} (log density {logd[k]:.2f})"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 3. score: J per design, as the run scores (run_all.score_policy: its episodes, start level, episode length)
+# ----------------------------------------------------------------------------------------------------------
+def walk(task: str, start: int, xs: list) -> tuple:
+    """Each episode's level, replayed from the final x's by the curriculum's rule [facts] (ballu.curriculum_update;
+    x None, a blow-up, holds the level), and the level after the last: ballu.score returns only the final x. The
+    caller checks the last level against J (a blow-up at a finite x, past the speed limit, would differ)."""
+    levels = [start]
+    for x in xs:
+        levels.append(levels[-1] if x is None else int(ballu.curriculum_update(task, levels[-1], x)))
+    return levels[:-1], levels[-1]
+
+
+def score(t: Target, designs: list, episodes: int | None = None, workers: int = 2, label: str = "") -> list:
+    """A row per design: J as Table II scores (the preset's episodes unless `episodes`), each episode's level and
+    final x; for GES the routed specialist and its log density, each specialist's designs in one call (as
+    ges.RoutedEvaluator)."""
+    preset = t.preset if episodes is None else replace(t.preset, score_episodes=episodes)
+    rows, groups = [{"design": d} for d in designs], {}
+    for i, d in enumerate(designs):
+        if t.ges is not None:
+            k, logd = route(t.ges, d.theta)
+            rows[i].update(specialist=t.ges.ids[k], log_density=float(logd[k]), k=k)
+        groups.setdefault(rows[i].get("k"), []).append(i)
+    for k, idx in groups.items():
+        pol = t.policy if k is None else check_fits(run_all.load_ges_ckpt(t.ges.ckpt[k], preset), t.task, t.ges.ckpt[k])
+        full, trace = np.array([designs[i].full for i in idx]), {}
+        j = run_all.score_policy(pol, full, t.task, preset, workers, label + ("" if k is None else f" specialist {k}"),
+                                 trace=trace)
+        for i, jj, f in zip(idx, j, full):
+            levels, last = walk(t.task, start_level(t.task, preset), trace[f.tobytes()])
+            rows[i].update(J=float(jj), x=trace[f.tobytes()], levels=levels,
+                           walk_ok=bool(np.isclose(ballu.level_score(t.task, last), jj)))
+    return rows
+
+
+def cmd_score(a) -> None:
+    t = resolve(a.policy, workers=a.workers)
+    designs = [design_arg(s, t.space) for s in a.design or ([] if a.designs else ["optimum"])]
+    designs += designs_file(a.designs, t.space) if a.designs else []
+    print(f"scoring {METHODS.get(t.method, t.where)} ({t.where}, {t.task} {t.sp}) on {len(designs)} design(s): "
+          f"{a.episodes or t.preset.score_episodes} episodes from level {start_level(t.task, t.preset)} "
+          f"({t.preset.name} preset's J), {a.workers} worker(s)", flush=True)
+    t0, rows, unit = time.time(), score(t, designs, a.episodes, a.workers, t.method), run_all.UNIT[t.task]
+    out, n = a.out or f"scores-{t.method}-{t.task}-{t.sp}.csv", max(len(r["x"]) for r in rows)
+    with open(out, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["design", *ballu.DESIGN_NAMES, f"J_{unit}", "specialist", "log_density"]
+                   + [f"level_{e + 1}" for e in range(n)] + [f"x_{e + 1}" for e in range(n)])
+        for r in rows:
+            d, gs = r["design"], "specialist" in r
+            w.writerow([d.label, *[f"{v:.6g}" for v in d.full], f"{r['J']:.4g}", r.get("specialist", ""),
+                        f"{r['log_density']:.4f}" if gs else ""] + r["levels"]
+                       + ["" if x is None else f"{x:.4f}" for x in r["x"]])
+            print(f"{d.label:>24}  {'  '.join(f'{name} {v:.4g}' for name, v in zip(t.space.names, d.theta))}  J "
+                  f"{r['J']:5.1f} {unit}" + (f"  specialist {r['specialist']} (log density {r['log_density']:.2f})"
+                                             if gs else ""))
+            print(f"{'levels':>30}  {' '.join(f'{v:>4}' for v in r['levels'])}"
+                  + ("" if r["walk_ok"] else "  (replayed walk != J: a blown-up episode)"))
+            print(f"{'final x, m':>30}  {' '.join('   -' if x is None else f'{x:4.2f}' for x in r['x'])}")
+    print(f"wrote {out} ({len(rows)} designs, {time.time() - t0:.0f} s)")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 4. watch: one episode filmed, alone or beside another method's (report/animate.py)
+# ----------------------------------------------------------------------------------------------------------
+def design_text(d: Design) -> str:
+    """'optimum: gcr 0.88  spcf 0.008  legs 0.45 m' (the label only when it is a name)."""
+    legs = f"{d.full[0]:.3g}" if d.full[0] == d.full[1] else f"{d.full[0]:.3g}/{d.full[1]:.3g}"
+    return ("" if "=" in d.label else f"{d.label}: ") + f"gcr {d.full[2]:.3g}  spcf {d.full[3]:.3g}  legs {legs} m"
+
+
+def cmd_watch(a) -> None:
+    if a.vs and len(a.policy) != 3:
+        raise UseError("--vs needs the RUN METHOD CELL form (a method of the same run)")
+    targets = [resolve(a.policy, workers=1)] + ([resolve(a.policy, a.vs, 1)] if a.vs else [])
+    t0, t = time.time(), targets[0]
+    design, level = design_arg(a.design, t.space), level_arg(a.level, a.height, t.task, t.preset)
+    out = a.out or f"watch-{t.method}{'-vs-' + a.vs if a.vs else ''}-{t.task}-{t.sp}-L{level}.gif"
+    try:
+        animate.check_writer(out)
+    except RuntimeError as e:   # MP4 without ffmpeg
+        raise UseError(str(e)) from None
+    films = []
+    for tg in targets:
+        pol, what = play(tg, design)
+        print(f"filming {what} on {design.label} at {animate.level_text(t.task, level)} ...", flush=True)
+        cfg = tg.preset.env_config(ballu.policy_config(pol, tg.task))   # as run_all.score_policy plays it
+        f = animate.film(pol, tg.task, design.full, level, cfg, a.every, a.max_steps, a.size)
+        print(f"  {len(f['frames'])} frames, {animate.outcome(tg.task, f['final_x'], f['blowup'])[0]}", flush=True)
+        films.append((f, [what, design_text(design)]))
+    frames = animate.panel_frames(films, t.task, level, int(animate.HOLD_S * a.fps))
+    animate.save_animation(out, frames, a.fps)
+    print(f"wrote {out}: {len(frames)} frames, {os.path.getsize(out) / 1e6:.2f} MB, {time.time() - t0:.0f} s")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 5. The command line
+# ----------------------------------------------------------------------------------------------------------
+WORDS_HELP = (f"RUN METHOD CELL (a run_all output folder; METHOD: {', '.join(METHODS)}; CELL: obstacle-d2 ... "
+              "ramp-d3), or CHECKPOINT CELL, or GES-RUN-FOLDER CELL")
+DESIGN_HELP = ("name=value,... of the cell's space (e.g. gcr=0.86,spcf=0.008; names not given take the baseline's "
+               "values), or optimum (gcr 0.88, spcf 0.008 [paper]) or baseline (Table I)")
+
+
+def positive(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer >= 1")
+    return int(text)
+
+
+def picture(text: str) -> tuple:
+    w, _, h = text.lower().partition("x")
+    if not (w.isdigit() and h.isdigit() and 16 <= int(w) <= 2000 and 16 <= int(h) <= 2000):
+        raise argparse.ArgumentTypeError(f"{text!r} is not WxH with 16..2000 pixels each (e.g. 320x240)")
+    return int(w), int(h)
+
+
+def parser() -> argparse.ArgumentParser:
+    fmt, ex = argparse.RawDescriptionHelpFormatter, __doc__.splitlines()[2:6]
+    p = argparse.ArgumentParser(prog="python run_all.py", formatter_class=fmt, epilog="examples:\n" + "\n".join(ex),
+                                description="Watch or score a trained policy or GES run on any design.")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    w = sub.add_parser("watch", formatter_class=fmt, help="film one episode as a GIF (or MP4)",
+                       epilog="examples:\n" + "\n".join(ex[:2]))
+    s = sub.add_parser("score", formatter_class=fmt, help="J per design, each episode's level and final x, a CSV",
+                       epilog="examples:\n" + "\n".join(ex[2:]))
+    for q, what in ((w, "watch-<method>[-vs-<method>]-<cell>-L<level>.gif"), (s, "scores-<method>-<cell>.csv")):
+        q.add_argument("policy", nargs="+", metavar="WORDS", help=WORDS_HELP)
+        q.add_argument("--out", help=f"output file (default: {what} in this folder)")
+    w.add_argument("--design", default="optimum", help=DESIGN_HELP + "; default optimum")
+    w.add_argument("--vs", metavar="METHOD", help="a second method of the same run, side by side")
+    lv = w.add_mutually_exclusive_group()
+    lv.add_argument("--level", type=int, help="curriculum level 0..74 (default: J's start level)")
+    lv.add_argument("--height", type=float, help="obstacle height in cm or ramp angle in deg (nearest level)")
+    w.add_argument("--every", type=positive, default=4, help="a frame every N control steps (20 Hz); default 4")
+    w.add_argument("--fps", type=positive, default=10, help="frames per second of the file; default 10 (2x real time)")
+    w.add_argument("--size", type=picture, default=(animate.WIDTH, animate.HEIGHT), help="each panel's picture, WxH")
+    w.add_argument("--max-steps", type=positive, help="stop the episode after N control steps (a quick look, tests)")
+    s.add_argument("--design", action="append", help=DESIGN_HELP + "; repeatable; default optimum")
+    s.add_argument("--designs", metavar="CSV", help="a CSV of designs: a header of names (and label), a design a row")
+    s.add_argument("--episodes", type=positive, help="episodes of J (default: the run's preset's score_episodes)")
+    s.add_argument("--workers", type=positive, default=os.cpu_count() or 1,
+                   help="worker processes scoring the designs (default: every core)")
+    w.set_defaults(run=cmd_watch)
+    s.set_defaults(run=cmd_score)
+    return p
+
+
+def main(argv=None) -> int:
+    """Exit code 0; 2 with one line on bad input (a design outside the space, a missing file, an unknown method
+    or cell, a checkpoint of another task or observation set)."""
+    a = parser().parse_args(argv)
+    try:
+        a.run(a)
+    except BadInput as e:
+        print(f"run_all.py: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
