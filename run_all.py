@@ -1,13 +1,12 @@
 """run_all.py -- one command that regenerates every table and figure of the GES paper with our code.
 
-    python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--out DIR] [--workers N] [--seed S]
-                      [--fresh] [--set FIELD=VALUE ...] [--executor process|dask [--scheduler ADDRESS]]
-    python run_all.py --plan [--out DIR] | --rates [--preset P] [--workers N]   # hours on this machine / rates
+    python run_all.py [--preset smoke|quick|overnight|paper] [--only NAME,...] [--set FIELD=VALUE ...] [--out DIR]
+                      [--workers N] [--seed S] [--fresh] [--executor process|dask [--scheduler ADDRESS]]
+    python run_all.py --plan | --rates | watch ... | score ...   # hours on this machine; use what a run trained
 
 Read top to bottom, the paper's experiments section in order:
-  1. the co-design of BALLU (paper Sec. IV): tasks, design spaces and methods; training a PPO policy on a
-     design sampler; GES's train and score callables (ges.py's contract); J(theta) of every method, GES's
-     through the density router (eq. 10, ges.RoutedEvaluator)
+  1. the co-design of BALLU (paper Sec. IV): tasks, spaces, methods; a PPO policy on a design sampler; GES's train
+     and score callables (ges.py's contract); J(theta) of every method, GES's through the router (eq. 10)
   2. presets: every budget of a run in one dataclass
   3. stages (each a function, each name usable with --only), in the order a run runs them:
        table1     the design space and the baseline design                       (paper Table I)
@@ -20,23 +19,13 @@ Read top to bottom, the paper's experiments section in order:
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve (drawn by report/figures.py)
   4. the stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches, per-design BO
-  5. REPORT.md and results.json from the stages' results; the paper's numbers, the header (budgets, seed,
-     commit), every table with each cell as "ours (paper)" and the wall times in report/
-  6. machinery: derived seeds, work files and their repair, the files the code hash covers and a Dask cluster
-     gets, the job --rates and a calibration time
-  7. the command line: this experiment as runkit.cli runs it
-Machinery that knows nothing of BALLU or GES (progress, files, the output folder, pools, statistics, --plan's
-arithmetic, the command line of a run made of stages) lives in runkit/; the figures and tables' Markdown in report/.
-Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (see runkit.cli.kill_hook) to simulate a kill.
-
-Output: results/<preset>/ (manifest.json, REPORT.md, results.json, *.csv, figures/*.png, and the work files:
-policies/, ges/, tpe/, stages/). Every stage writes its artifacts when it finishes and long stages checkpoint
-inside (PPO via ppo.train's checkpoint, GES via run_ges's run_dir, TPE via its study file), so a rerun skips
-finished work; --fresh starts over. All randomness derives from --seed, so a rerun that finds a damaged work file
-redoes its part with the same numbers (repair; a damaged GES run or manifest is a one-line error instead).
-
-What "ours" means: numbers this run measured with ballu.py (PyBullet, not Isaac Lab), ppo.py, ges.py and
-tpe.py under the preset's budgets, which are far below the paper's except in the `paper` preset.
+  5. REPORT.md and results.json (the tables' Markdown in report/); 6. machinery (seeds, repair, hashed files,
+     the --rates job); 7. the command line (runkit.cli; watch and score: experiments/use.py)
+Output: results/<preset>/ (manifest.json, REPORT.md, results.json, test_scores.csv, figures/, and the work files
+policies/, ges/, tpe/, stages/). Every stage keeps its result and long ones checkpoint inside, so a rerun skips
+finished work and, all randomness deriving from --seed, redoes a damaged file's part with the same numbers
+(docs/resume.md). "Ours" = what this run measured (PyBullet BALLU, our PPO, GES and TPE) under the preset's budgets.
+Tests: RUN_ALL_FAIL_AT=<tag> raises at that point of a stage (runkit.cli.kill_hook) to simulate a kill.
 """
 from __future__ import annotations
 
@@ -86,6 +75,7 @@ UNIT = {"obstacle": "cm", "ramp": "deg"}
 METHODS = ("baseline", "mlp", "moe", "ges")          # "baseline" = the baseline design's own policy
 E2E = ("mlp", "moe")                                  # the end-to-end policies of a cell (paper Sec. V-A)
 SEARCHED = E2E + ("ges",)                             # the methods a TPE design search runs with (Sec. V-B)
+CELLS = tuple(f"{t}-{s}" for t in TASKS for s in SPACES)   # a run's cells: each task in each space (Table II's rows)
 
 
 def space_of(preset: Preset, task: str, sp: str) -> ballu.DesignSpace:
@@ -324,6 +314,14 @@ class Preset:
     # [ours] control steps per episode, in training and in every score (None: the facts' 400 = 20 s); smoke's 100
     # quarter the suite's pipeline runs, whose time goes to playing episodes
     episode_steps: int | None = None
+    # the task/space cells the run runs [paper: all four]; e.g. `--set cells=obstacle-d2` runs one cell alone (its
+    # baseline-design policy, e2e policies, GES, tables; Table III, Fig. 7 and the cost only with their own cell)
+    cells: tuple = CELLS
+
+    def __post_init__(self):
+        bad = [c for c in self.cells if c not in CELLS]
+        if bad or not self.cells:
+            raise ValueError(f"cells={','.join(map(str, self.cells))}: each one of {','.join(CELLS)}, at least one")
 
     def ges_steps(self, rounds: int) -> int:
         """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted): round 0's
@@ -363,7 +361,7 @@ SMOKE = Preset("smoke", ppo_steps=128, ges_round_steps=64, ppo_envs=4, ppo_rollo
 # quick: every table and figure in a few hours on 2 cores (README; `--plan`): 380k PPO steps per policy (where
 # the e2e MLP's steep climb ends); specialists warm-start from their cell's e2e MLP (ours) and train 150k steps in
 # round 0 (a territory helps from ~200k: docs/ges_lanes), 10k in round 1, the last (F = 3, n_init = 2, ours:
-# coverage grows with F / n_init, `python ges.py --sweep`); 18 test designs; Table III grid vs FPS + Lloyd, Fig. 7
+# coverage grows with F / n_init, `python ges.py sweep`); 18 test designs; Table III grid vs FPS + Lloyd, Fig. 7
 # K = 1 and 3, 4 TPE trials, 2 BO trials: what 18 designs cannot resolve anyway. Each budget's why: docs/presets.md.
 QUICK = Preset("quick", ppo_steps=380_000, ges_round_steps=10_000, ppo_envs=32, ppo_rollout=64,
                score_episodes=20, n_test=18, tpe_trials=4, tpe_startup=2, ges_max_rounds=2, ges_probes=3,
@@ -416,6 +414,16 @@ class Run:
     def K(self, sp: str) -> int:
         return self.preset.K_d2 if sp == "d2" else self.preset.K_d3
 
+    def cells(self) -> list:
+        """(task, space) of the preset's cells, in Table II's order."""
+        return [(t, s) for t in TASKS for s in SPACES if f"{t}-{s}" in self.preset.cells]
+
+    def tasks(self) -> list:
+        return [t for t in TASKS if any(c[0] == t for c in self.cells())]
+
+    def has(self, task: str, sp: str) -> bool:
+        return f"{task}-{sp}" in self.preset.cells
+
     def main_ges(self, task: str, sp: str) -> str:
         """Name of a cell's main GES run: K of its space, the paper's FPS + Lloyd initialisation."""
         return ges_name(task, sp, self.K(sp), "fps+lloyd")
@@ -466,7 +474,7 @@ def stage_baselines(run: Run) -> dict:
 # --- GES ----------------------------------------------------------------------------------------------------
 def stage_ges(run: Run) -> dict:
     """GES stage 1 for obstacle/ramp x D2/D3 with the paper's default init (FPS + Lloyd)."""
-    return ges_runs(run, [(t, s, run.K(s), "fps+lloyd") for t in TASKS for s in SPACES], "GES runs")
+    return ges_runs(run, [(t, s, run.K(s), "fps+lloyd") for t, s in run.cells()], "GES runs")
 
 
 # --- the step-matched e2e MLP [ours; the paper has no such control] -----------------------------------------
@@ -480,11 +488,10 @@ def stage_matched(run: Run) -> dict:
     it ends at each specialist's steps; without, it is the e2e MLP given a specialist's steps more."""
     ges_res, out = stage_result(run, "ges"), {}
     jobs = []
-    for t in TASKS:
-        for s in SPACES:
-            warm = ppo.scored_path(policy_ckpt(run, f"mlp-{t}-{s}"), run.preset.policy_rule)
-            steps = ckpt_steps(warm) + run.preset.ges_steps(ges_res[run.main_ges(t, s)]["rounds"])
-            jobs.append(MatchedJob(run.out, run.preset, run.seed, t, s, MATCHED, steps))
+    for t, s in run.cells():
+        warm = ppo.scored_path(policy_ckpt(run, f"mlp-{t}-{s}"), run.preset.policy_rule)
+        steps = ckpt_steps(warm) + run.preset.ges_steps(ges_res[run.main_ges(t, s)]["rounds"])
+        jobs.append(MatchedJob(run.out, run.preset, run.seed, t, s, MATCHED, steps))
     prog = Progress("step-matched e2e MLPs", len(jobs), every=0, parallel=run.workers)
     with run.pool() as ex:
         futures = [ex.submit(job) for job in jobs]
@@ -500,9 +507,9 @@ def stage_table2(run: Run) -> dict:
     """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
     out = {"design": {}, "cells": {}}
     # the "baseline design" column: the baseline policy at the baseline design; then every method's test set
-    design = [ScoreSet(run.out, run.preset, run.seed, t, "d2", "design") for t in TASKS]
+    design = [ScoreSet(run.out, run.preset, run.seed, t, "d2", "design") for t in run.tasks()]
     units = [ScoreSet(run.out, run.preset, run.seed, t, s, m, run.main_ges(t, s) if m == "ges" else None)
-             for t in TASKS for s in SPACES for m in METHODS]
+             for t, s in run.cells() for m in METHODS]
     scores = score_sets(run, design + units, "score sets")
     for job in design:
         out["design"][job.task] = float(scores[job.key][0])
@@ -514,8 +521,7 @@ def stage_table2(run: Run) -> dict:
     for key, cell in out["cells"].items():
         g = np.array(cell["ges"]["scores"])
         cell["ges_wins"] = {m: wins(g, np.array(cell[m]["scores"])) for m in ("baseline", "mlp", "moe")}
-    specs = [SearchSpec(run.out, run.preset, run.seed, t, s, m) for t in TASKS for s in SPACES
-             for m in SEARCHED]
+    specs = [SearchSpec(run.out, run.preset, run.seed, t, s, m) for t, s in run.cells() for m in SEARCHED]
     out["peaks"] = run_searches(run, specs)
     write_test_csv(run, out)
     return out
@@ -524,7 +530,9 @@ def stage_table2(run: Run) -> dict:
 # --- Table III and K sensitivity ----------------------------------------------------------------------------
 def stage_table3(run: Run) -> dict:
     """Table III: GES (K = K_d2, obstacle, D2) with each centre initialisation; the FPS + Lloyd run is the
-    ges stage's run (same directory), so it is not trained twice."""
+    ges stage's run (same directory), so it is not trained twice. {} when the run leaves out obstacle D2."""
+    if not run.has("obstacle", "d2"):
+        return {}
     specs = [("obstacle", "d2", run.K("d2"), init) for init in run.preset.table3_inits]
     runs = ges_runs(run, specs, "Table III GES runs")
     names = [ges_name(*sp) for sp in specs]
@@ -535,7 +543,9 @@ def stage_table3(run: Run) -> dict:
 
 def stage_ksens(run: Run) -> dict:
     """Fig. 7: GES (obstacle, D2, FPS + Lloyd) mean score for each K; K = K_d2 reuses the ges stage's run. With
-    ksens_auto also adaptive K (key "auto", its final K beside it)."""
+    ksens_auto also adaptive K (key "auto", its final K beside it). {} when the run leaves out obstacle D2."""
+    if not run.has("obstacle", "d2"):
+        return {}
     Ks = list(run.preset.ksens_K) + ["auto"] * run.preset.ksens_auto
     specs = [("obstacle", "d2", K, "fps+lloyd") for K in Ks]
     runs = ges_runs(run, specs, "K-sensitivity GES runs")
@@ -560,6 +570,8 @@ def stage_cost(run: Run) -> dict:
     (tpe.startup_batch: the same trials as one at a time)."""
     p = run.preset
     t, s = p.cost_task, p.cost_space
+    if not run.has(t, s):   # the run leaves out the cost's cell
+        return {}
     space = space_of(p, t, s)
     ges_summary = stage_result(run, "ges")[run.main_ges(t, s)]
     router = stage_result(run, "table2")["peaks"][f"{t}-{s}-ges"]
@@ -599,34 +611,38 @@ def stage_cost(run: Run) -> dict:
 # --- figures (report/figures.py draws them) -----------------------------------------------------------------
 def stage_figures(run: Run) -> dict:
     """Every figure, drawn by report/figures.py from this run's numbers and policies: Figs. 1, 3-8 and the learning
-    curves of every trained policy."""
+    curves of every trained policy (each figure whose cells the run has)."""
     t2, ks = stage_result(run, "table2"), stage_result(run, "ksens")
     fdir = run.path("figures")
     os.makedirs(fdir, exist_ok=True)
     figs = {"fig3": fig_distributions(t2["cells"], TASKS, SPACES, METHODS, UNIT, {s: run.K(s) for s in SPACES},
                                       os.path.join(fdir, "fig3_distributions.png"))}
-    space = space_of(run.preset, "obstacle", "d3")   # Fig. 4: 10 designs from distinct regions of obstacle D3
-    figs["fig4"], ent, gate, ks_routed = fig_experts(
-        load_policy(run, "moe", "obstacle", "d3"), load_ges(run.path("ges", run.main_ges("obstacle", "d3"))), space,
-        distinct_designs(space, 10, derive_seed(run.seed, "fig4")), "obstacle, D3",
-        os.path.join(fdir, "fig4_expert_contributions.png"))
-    space, peak = space_of(run.preset, "obstacle", "d2"), t2["peaks"]["obstacle-d2-ges"]["peak_design"]
-    experts = lambda: [load_ges_ckpt(c, run.preset)   # noqa: E731  obstacle D2's specialists (Fig. 5)
-                       for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
-    figs["fig5"] = fig_toes(experts(), space.full([peak[n] for n in space.names]),
-                            os.path.join(fdir, "fig5_toe_heights.png"), run.preset.episode_steps)
-    gaits = specialist_gaits(experts(), space, derive_seed(run.seed, "gaits"), steps=run.preset.episode_steps)
-    for t in TASKS:
-        for s in SPACES:
-            name = run.main_ges(t, s)
-            figs[f"fig6-{t}-{s}"] = plot_territories(load_ges(run.path("ges", name)).history,
-                                                      os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
-    figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
-    figs["fig8"] = fig_sensitivity([(t, space_of(run.preset, t, "d2"), run.test_designs(t, "d2"),
-                                     t2["cells"][f"{t}-d2"]["ges"]["scores"], UNIT[t]) for t in TASKS],
-                                   os.path.join(fdir, "fig8_design_sensitivity.png"))
-    for t in TASKS:   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level
-        s = max(SPACES, key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
+    ent = gate = ks_routed = gaits = None
+    if run.has("obstacle", "d3"):   # Fig. 4: 10 designs from distinct regions of obstacle D3
+        space = space_of(run.preset, "obstacle", "d3")
+        figs["fig4"], ent, gate, ks_routed = fig_experts(
+            load_policy(run, "moe", "obstacle", "d3"), load_ges(run.path("ges", run.main_ges("obstacle", "d3"))),
+            space, distinct_designs(space, 10, derive_seed(run.seed, "fig4")), "obstacle, D3",
+            os.path.join(fdir, "fig4_expert_contributions.png"))
+    if run.has("obstacle", "d2"):   # Fig. 5: obstacle D2's specialists at GES's peak design
+        space, peak = space_of(run.preset, "obstacle", "d2"), t2["peaks"]["obstacle-d2-ges"]["peak_design"]
+        experts = lambda: [load_ges_ckpt(c, run.preset)   # noqa: E731
+                           for c in load_ges(run.path("ges", run.main_ges("obstacle", "d2"))).ckpt]
+        figs["fig5"] = fig_toes(experts(), space.full([peak[n] for n in space.names]),
+                                os.path.join(fdir, "fig5_toe_heights.png"), run.preset.episode_steps)
+        gaits = specialist_gaits(experts(), space, derive_seed(run.seed, "gaits"), steps=run.preset.episode_steps)
+    for t, s in run.cells():
+        figs[f"fig6-{t}-{s}"] = plot_territories(load_ges(run.path("ges", run.main_ges(t, s))).history,
+                                                  os.path.join(fdir, f"fig6_territories_{t}-{s}.png"))
+    if ks:
+        figs["fig7"] = fig_ksens(ks, os.path.join(fdir, "fig7_k_sensitivity.png"))
+    d2 = [t for t in TASKS if run.has(t, "d2")]
+    if d2:
+        figs["fig8"] = fig_sensitivity([(t, space_of(run.preset, t, "d2"), run.test_designs(t, "d2"),
+                                         t2["cells"][f"{t}-d2"]["ges"]["scores"], UNIT[t]) for t in d2],
+                                       os.path.join(fdir, "fig8_design_sensitivity.png"))
+    for t in run.tasks():   # Fig. 1: motion strip of the best design GES's searches found per task, at its final level
+        s = max((sp for sp in SPACES if run.has(t, sp)), key=lambda sp: t2["peaks"][f"{t}-{sp}-ges"]["peak"])
         pk, space = t2["peaks"][f"{t}-{s}-ges"], space_of(run.preset, t, s)
         theta = [pk["peak_design"][n] for n in space.names]
         policy = ges_specialist(run.path("ges", run.main_ges(t, s)), theta, run.preset)
@@ -634,10 +650,10 @@ def stage_figures(run: Run) -> dict:
                                          level_of(t, pk["peak"]), space.full(theta)[0])
     cdir = os.path.join(fdir, "curves")
     os.makedirs(cdir, exist_ok=True)
-    for t in TASKS:
+    for t in run.tasks():
         logs = [("baseline design", [run.path("policies", f"baseline-{t}", "log.csv")])]
         logs += [(f"{m} {s}", [run.path("policies", f"{m}-{t}-{s}", "log.csv")])
-                 for s in SPACES for m in E2E]
+                 for s in SPACES if run.has(t, s) for m in E2E]
         figs[f"curves-e2e-{t}"] = fig_curves(logs, os.path.join(cdir, f"e2e_{t}.png"),
                                              f"{t}: baseline-design policy, e2e MLP and MoE")
     for name in sorted(os.listdir(run.path("ges"))):
@@ -669,12 +685,10 @@ def policy_ckpt(run: Run, name: str) -> str:
 def baseline_jobs(run: Run) -> list:
     """(name, kind, task, sampler): the baseline design's own policy per task, e2e MLP and MoE per task/space
     (trained with uniform design randomisation over the space, paper Sec. V-A)."""
-    jobs = [(f"baseline-{t}", "mlp", t, ballu.FixedDesign(ballu.BASELINE)) for t in TASKS]
-    for t in TASKS:
-        for s in SPACES:
-            space = space_of(run.preset, t, s)
-            for kind in E2E:
-                jobs.append((f"{kind}-{t}-{s}", kind, t, ballu.UniformDesign(space)))
+    jobs = [(f"baseline-{t}", "mlp", t, ballu.FixedDesign(ballu.BASELINE)) for t in run.tasks()]
+    for t, s in run.cells():
+        space = space_of(run.preset, t, s)
+        jobs += [(f"{kind}-{t}-{s}", kind, t, ballu.UniformDesign(space)) for kind in E2E]
     return jobs
 
 
@@ -830,12 +844,11 @@ def write_test_csv(run: Run, t2: dict) -> None:
     with open(run.path("test_scores.csv"), "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["task", "space", "l_f", "l_t", "gcr", "spcf"] + list(METHODS))
-        for t in TASKS:
-            for s in SPACES:
-                full = space_of(run.preset, t, s).full(run.test_designs(t, s))
-                cell = t2["cells"][f"{t}-{s}"]
-                for j, d in enumerate(full):
-                    w.writerow([t, s] + [f"{v:.6g}" for v in d] + [cell[m]["scores"][j] for m in METHODS])
+        for t, s in run.cells():
+            full = space_of(run.preset, t, s).full(run.test_designs(t, s))
+            cell = t2["cells"][f"{t}-{s}"]
+            for j, d in enumerate(full):
+                w.writerow([t, s] + [f"{v:.6g}" for v in d] + [cell[m]["scores"][j] for m in METHODS])
 
 
 def ges_test_scores(run: Run, names: list, label: str) -> dict:
@@ -1066,7 +1079,12 @@ def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps
 EXPERIMENT = Experiment(tool="run_all.py", description="Regenerate every table and figure of the GES paper.",
                         home=HERE, presets=PRESETS, default_preset="quick", stages=STAGES, layout=LAYOUT, Run=Run,
                         rate_job=rate_job, report=report, repair=repair, results_format=RESULTS_FORMAT,
-                        numbers=HASHED_FILES, files=PROJECT_FILES)
+                        numbers=HASHED_FILES, files=PROJECT_FILES, examples="""examples:
+    python run_all.py --preset smoke                      # every stage, tiny budgets: 1-2 min
+    python run_all.py --plan --preset overnight           # the hours per stage on this machine, then exit
+    python run_all.py --preset quick --set cells=obstacle-d2 --set n_test=10 --out results/one
+    python run_all.py watch docs/overnight/seed0 ges obstacle-d2 --vs mlp --design optimum   # a GIF
+    python run_all.py score docs/quick mlp ramp-d3 --design gcr=0.8,spcf=0.01              # J per design""")
 
 
 def main(argv=None) -> int:

@@ -43,6 +43,9 @@ def fig_distributions(cells: dict, tasks, spaces, methods, units: dict, K: dict,
     fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
     for i, t in enumerate(tasks):
         for j, s in enumerate(spaces):
+            if f"{t}-{s}" not in cells:   # a run of some cells only (Preset.cells)
+                axes[i, j].axis("off")
+                continue
             ax, cell = axes[i, j], cells[f"{t}-{s}"]
             data = [cell[m]["scores"] for m in methods]
             ax.boxplot(data, showmeans=True, meanprops=dict(marker="o", mfc="k", mec="k", ms=5))

@@ -1,6 +1,6 @@
 """report/strip.py -- the motion strip of paper Fig. 1: one episode of a policy on a design, filmed from the side.
 
-run_all.py's figure stage films the best design each task's GES search found; `python ballu.py --strip PNG`
+run_all.py's figure stage films the best design each task's GES search found; `python ballu.py strip --out PNG`
 films a pump gait (experiments/ballu_bench.py), `python -m experiments.ppo_ballu strip` a trained policy.
 """
 from __future__ import annotations

@@ -80,8 +80,8 @@ def report_header(p, seed: int, commit: str, manifest: dict) -> list:
             f"target coverage {p.ges_target_coverage:.0%}, "
             f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
             f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}"] + (
-        ["- overridden from the command line (`--set`): " + ", ".join(f"{k}={v}" for k, v in
-                                                                       manifest["overrides"].items())]
+        ["- overridden from the command line (`--set`): " + ", ".join(
+            f"{k}={','.join(map(str, v)) if isinstance(v, list) else v}" for k, v in manifest["overrides"].items())]
         if manifest.get("overrides") else []) + [""]
 
 
@@ -131,17 +131,22 @@ def report_table1(table1: dict) -> list:
         ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {DESIGN_WORDS}", ""]
 
 
+def cells_of(table2: dict) -> list:
+    """The (task, space) cells Table II has, in the paper's order (a run may run some only: run_all Preset.cells)."""
+    return [(t, s) for t, s in CELLS if f"{t}-{s}" in table2["cells"]]
+
+
 def report_table2(table2: dict, preset, matched: dict | None = None) -> list:
     """Table II, its TPE peaks and the head-to-head; with the `matched` stage's result, the step-matched e2e MLP
     as a column of each (ours, not in the paper)."""
-    means = []
-    for t, s in CELLS:
+    means, cells = [], cells_of(table2)
+    for t, s in cells:
         scores, paper = table2["cells"][f"{t}-{s}"], PAPER_TABLE2[(t, s)]
         means.append([t, s.upper(), cell(table2["design"][t], paper["design"])]
                      + [cell_ci(scores[m]["scores"], paper.get(m)) for m in ("baseline", "mlp", "moe", "ges")]
                      + ([cell_ci(matched[f"{t}-{s}"]["scores"], None)] if matched else []))
     peaks = []
-    for t, s in CELLS:
+    for t, s in cells:
         for m in ("mlp", "moe", "ges"):
             peak = table2["peaks"][f"{t}-{s}-{m}"]
             design = " ".join(f"{k}={v:.4g}" for k, v in peak["peak_design"].items())
@@ -150,7 +155,7 @@ def report_table2(table2: dict, preset, matched: dict | None = None) -> list:
             peaks.append([t, s.upper(), METHOD_NAMES[m], f"{peak['peak']:.1f}", long_J, design,
                           paper_design or "-"])
     wins_rows = []
-    for t, s in CELLS:
+    for t, s in cells:
         cmps = ges_comparisons(table2, t, s)
         wins_rows.append([t, s.upper()] + [comparison_cell(cmps[m], PAPER_WINS[(t, s)].get(m))
                                            for m in ("baseline", "mlp", "moe")]
@@ -267,8 +272,10 @@ def report_cost(cost: dict) -> list:
 
 
 def report_figures(figures: dict) -> list:
-    return (["## Figures", "", f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
-             f"collapse; paper: 'nearly equal weight'): {figures['moe_gate_entropy']:.2f}; GES: 0 (hard).", ""]
+    ent = figures["moe_gate_entropy"]   # None: the run has no obstacle D3 (Fig. 4)
+    return (["## Figures", ""] + ([f"MoE gate entropy on the 10 designs of Fig. 4 (normalised, 1 = uniform = "
+                                   f"collapse; paper: 'nearly equal weight'): {ent:.2f}; GES: 0 (hard).", ""]
+                                  if ent is not None else [])
             + [f"- {k}: [{v}]({v})" for k, v in figures["files"].items()] + [""])
 
 
@@ -358,17 +365,17 @@ def claim_rows(results: dict) -> list:
     t2 = results.get("table2")
     if t2:
         for m, name in (("mlp", "e2e MLP"), ("moe", "e2e MoE")):
-            for t, s in CELLS:
+            for t, s in cells_of(t2):
                 cmp = ges_comparisons(t2, t, s)[m]
                 rows.append([f"GES > {name}, {t} {s.upper()}", verdict(cmp),
                              f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
     if t2 and results.get("matched"):
-        for t, s in CELLS:
+        for t, s in cells_of(t2):
             cmp = matched_comparison(t2, results["matched"], t, s)
             rows.append([f"GES > the e2e MLP at a specialist's steps, {t} {s.upper()} (ours)", verdict(cmp),
                          f"{cmp['diff']:+.1f} [{cmp['diff_lo']:+.1f}, {cmp['diff_hi']:+.1f}], p={cmp['p']:.2g}"])
     fig = results.get("figures")
-    if fig:
+    if fig and fig.get("moe_gate_entropy") is not None:
         ent = fig["moe_gate_entropy"]
         rows.append(["the e2e MoE's gate is near uniform (normalised entropy >= 0.9 on Fig. 4's designs, ours)",
                      "supported" if ent >= 0.9 else "not supported", f"entropy {ent:.2f}"])

@@ -42,6 +42,7 @@ class Experiment:
     results_format: int    # bumped when what a stage computes or stores changes: old result folders are refused
     numbers: tuple         # the files under `home` that produce the numbers, hashed (runkit.folder.code_hash)
     files: tuple           # the files under `home` a Dask cluster started by hand gets (runkit.pool.dask_client)
+    examples: str = ""     # --help's epilog: example command lines
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -162,7 +163,8 @@ def _scalar(text: str):
 
 
 def parse(argv, exp: Experiment):
-    ap = argparse.ArgumentParser(description=exp.description)
+    ap = argparse.ArgumentParser(description=exp.description, epilog=exp.examples,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default=exp.default_preset, choices=tuple(exp.presets),
                     help=f"budgets (default: {exp.default_preset})")
     ap.add_argument("--plan", action="store_true", help="print the preset's work per stage and its hours on "

@@ -30,7 +30,7 @@ TRAINED_SHARE = 0.81
 # measurements, since the plan is an upper bound (docs/presets.md). The step counts stay every episode's.
 SCORE_PLAYED = 0.66
 # [ours] how much faster a job runs while the other cores idle than beside busy ones: 2 workers do 1.68x one
-# (`python ballu.py --bench`, docs/speed), so a lone job on 2 cores runs 2 / 1.68 = 1.19x the per-core rate;
+# (`python ballu.py bench`, docs/speed), so a lone job on 2 cores runs 2 / 1.68 = 1.19x the per-core rate;
 # checked against measured stages in docs/presets.md ("How jobs pack onto the cores").
 ALONE_SPEEDUP = 2 / 1.68
 # [ours] fixed costs that only matter for tiny presets: a process pool's start (its spawned processes import
@@ -48,6 +48,7 @@ class Layout:
     methods: int         # methods scored on a cell's test designs
     searched: int        # methods with a TPE design search per cell
     episode_steps: int   # control steps of one episode
+    ksens_cell: str = "obstacle-d2"   # the cell of Table III and Fig. 7
 
 
 def played_share(preset) -> float:
@@ -80,14 +81,20 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
         # wave's jobs run ALONE_SPEEDUP x faster on the emptier machine
         return workers * (n // workers) + (workers / ALONE_SPEEDUP if n % workers else 0) - n
 
-    cells, tasks, searched = layout.tasks * layout.spaces, layout.tasks, layout.searched
-    main_K = [p.K_d2, p.K_d3] * tasks   # each task's main run in each of the preset's two spaces
-    other_inits, other_K = len(p.table3_inits) - 1, [K for K in p.ksens_K if K != p.K_d2]   # fps+lloyd, K_d2: ges
+    # the preset's cells ("<task>-<space>", space d2 or d3: run_all's Preset.cells), else every task in every space
+    chosen = getattr(p, "cells", None) or [f"{t}-d{2 + s}" for t in range(layout.tasks) for s in range(layout.spaces)]
+    cells, tasks, searched = len(chosen), len({c.rsplit("-", 1)[0] for c in chosen}), layout.searched
+    main_K = [p.K_d2 if c.endswith("d2") else p.K_d3 for c in chosen]   # each cell's main GES run
+    # Table III and Fig. 7 run on one cell (layout.ksens_cell), the cost on its own (the preset's cost_task/space)
+    k_on = not hasattr(p, "cells") or layout.ksens_cell in chosen
+    cost_on = not hasattr(p, "cells") or f"{p.cost_task}-{p.cost_space}" in chosen
+    other_inits = (len(p.table3_inits) - 1) * k_on                         # fps+lloyd with K_d2: the ges stage's
+    other_K = [K for K in p.ksens_K if K != p.K_d2] if k_on else []
     # adaptive K (ksens_auto) counted at its start and bound (ges_auto_K), plus its checks (every specialist
     # scores every territory's): an upper bound, as it merges down
-    auto = [p.ges_auto_K()] if getattr(p, "ksens_auto", False) else []
+    auto = [p.ges_auto_K()] if getattr(p, "ksens_auto", False) and k_on else []
     checks = sum(K * K * p.ges_n_check() * probe_J for K in auto) * p.ges_max_rounds
-    work = {"baselines": np.array([tasks * (1 + layout.e2e * layout.spaces) * p.ppo_steps, 0, 0]),
+    work = {"baselines": np.array([(tasks + layout.e2e * cells) * p.ppo_steps, 0, 0]),
             "ges": ges(main_K),
             # the step-matched e2e MLP: each cell's e2e MLP trained a specialist's steps on (round cap), then scored
             "matched": np.array([cells * p.ges_steps(p.ges_max_rounds), cells * p.n_test * J, 0]),
@@ -95,7 +102,7 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
                                 + cells * searched * peak_J, 0]),
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
             "ksens": ges(other_K + auto) + [0, len(other_K + auto) * p.n_test * J, checks],
-            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]), "figures": np.zeros(3)}
+            "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]) * cost_on, "figures": np.zeros(3)}
     # control steps the idle cores could have done: a stage's GES runs side by side, their specialists in waves
     # of `workers` each round; its score sets side by side
     spec = p.ges_steps(p.ges_max_rounds)
@@ -104,7 +111,8 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
              "table3": ges_idle([p.K_d2] * other_inits) + [0, idle(other_inits) * p.n_test * J, 0],
              "ksens": ges_idle(other_K + auto) + [0, idle(len(other_K + auto)) * p.n_test * J, 0]}
     played = played_share(p)
-    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) + FIGURES_S * (s == "figures") for s in work}
+    fixed = {s: POOLS.get(s, 0) * POOL_START_S * (workers > 1) * bool(work[s].any()) + FIGURES_S * (s == "figures")
+             for s in work}   # a stage without work (a cell the run leaves out) starts no pool
     # per-design BO's trials run `workers` at a time while random (startup), then one at a time: its width
     startup = min(p.cost_trials, p.tpe_startup)
     width = {"cost": p.cost_trials / (math.ceil(startup / workers) + p.cost_trials - startup)}
