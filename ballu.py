@@ -9,7 +9,7 @@ Read top to bottom:
   6. `BalluEnv`: N robots, one lane each, in PyBullet worlds (one lane per world by default); batched API
   7. `VecBallu`: W worker processes, each a `BalluEnv`, same API (the workers: runkit/lanes.py)
   8. the score J(policy, design) and two scripted controllers (stand, pump)
-  9. command line: --bench (throughput), --strip PNG (a pump gait's motion strip): experiments/ballu_bench.py
+  9. command line: bench (throughput), strip --out PNG (a pump gait's motion strip): experiments/ballu_bench.py
 
 Of the project it imports only runkit/lanes.py (worker processes; knows no robot): the learner (ppo.py) and the
 co-design (ges.py) sit on top. Physics audit and open-loop capability: experiments/ballu_capability.py.
@@ -282,7 +282,7 @@ class BalluConfig:
     max_speed: float = 10.0
     max_z: float = 5.0
     # [ours] lanes per PyBullet world, all at one spot. One: each world picks its own substeps, so a lane's
-    # trajectory never depends on world-mates; as fast as stacking (docs/speed; the sweep: python ballu.py --bench).
+    # trajectory never depends on world-mates; as fast as stacking (docs/speed; the sweep: python ballu.py bench).
     lanes_per_world: int = 1
     # [ours] episodes a training lane keeps a sampled design (the authors: the whole run [facts]); docs/ppo_protocol
     design_hold: int = 1
@@ -1249,8 +1249,8 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 9. Command line: --bench, --strip PNG (experiments/ballu_bench.py)
+# 9. Command line: bench, strip --out PNG (experiments/ballu_bench.py)
 # ----------------------------------------------------------------------------------------------------------
 if __name__ == "__main__":
     from experiments.ballu_bench import main
-    main()
+    raise SystemExit(main())

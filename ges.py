@@ -37,9 +37,9 @@ Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, r
 specialist another serves as well, split a territory its specialist serves unevenly), 9. the command line, whose code lives in experiments/ges_demo.py with the synthetic landscape and the benchmark.
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn); the figure of
-a run's territories is report.figures.plot_territories(history, path). `python ges.py --demo OUT` runs a
+a run's territories is report.figures.plot_territories(history, path). `python ges.py demo --out OUT` runs a
 synthetic landscape and writes OUT/territories.png (`--K auto --sites B` on B planted sites: adaptive K),
-`python ges.py --sweep` prints rounds to coverage per (n_init, F) on it, `--bench` times coverage/routing.
+`python ges.py sweep` prints rounds to coverage per (n_init, F) on it, `python ges.py bench` times coverage/routing.
 """
 from __future__ import annotations
 
@@ -779,10 +779,10 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 9. Command line: --demo, --sweep, --bench (experiments/ges_demo.py: the synthetic landscape, the benchmark)
+# 9. Command line: demo, sweep, bench (experiments/ges_demo.py: the synthetic landscape, the benchmark)
 # ---------------------------------------------------------------------------------------------------------
 def main(argv=None) -> int:
-    """`python ges.py --demo OUT [--K auto --sites B] | --sweep | --bench`: experiments/ges_demo.py's command
+    """`python ges.py demo --out OUT [--K auto --sites B] | sweep | bench`: experiments/ges_demo.py's command
     line, imported when run (ges imports nothing of experiments/ at load)."""
     from experiments.ges_demo import main as demo_main
     return demo_main(argv)

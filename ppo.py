@@ -12,7 +12,7 @@ Read top to bottom:
   7. checkpoints and resume: the last, and the best by training level (`scored_path`); a killed run resumed
      exactly; files written by older code
   8. loading a checkpoint as a plain `obs -> action` callable (for ballu.score and the strips)
-  9. benchmark: end-to-end training against stepping the env alone (`python ppo.py --bench`)
+  9. benchmark: end-to-end training against stepping the env alone (`python ppo.py bench`)
 
 This module imports no env: training one policy on BALLU is `python -m experiments.ppo_ballu train`, comparing
 PPO settings on it `python -m experiments.ppo_protocol` (docs/ppo_protocol).
@@ -25,7 +25,6 @@ in each worker k): the trainer then rolls out in the workers, one policy copy ea
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import os
@@ -855,30 +854,37 @@ def bench(make_env, cfg: PPOConfig = PPOConfig(), workers: int = 2, iters: int =
     return float(np.median(env_rate)), float(np.median(train_rate)), float(np.median(ratio))
 
 
+COMMANDS = """ppo.py -- PPO from scratch in torch; its command line times it (train on BALLU: run_all.py, ppo_ballu).
+
+    python ppo.py bench [--envs 32] [--workers 2] [--iters 30] [--env ballu]
+"""
+
+
 def _main(argv=None):
-    """`python ppo.py --bench`: PPO's own cost on a batched env, next to stepping that env alone. The env comes
+    """`python ppo.py bench`: PPO's own cost on a batched env, next to stepping that env alone. The env comes
     from a module named on the command line (default: ballu, the robot of the paper), which must offer
-    make_env(num_envs, workers); this module imports no env of its own."""
+    make_env(num_envs, workers); this module imports no env of its own (nor experiments/ at load)."""
     import importlib
-    ap = argparse.ArgumentParser(description="PPO from scratch: benchmark (the library itself has no other mode)")
-    ap.add_argument("--bench", action="store_true", help="env-only vs end-to-end training rate")
-    ap.add_argument("--env", default="ballu", help="module offering make_env(num_envs, workers) (default ballu)")
-    ap.add_argument("--workers", type=int, default=2, help="env worker processes (1..--envs)")
-    ap.add_argument("--envs", type=int, default=PPOConfig.num_envs, help="parallel envs (>= 1)")
-    ap.add_argument("--iters", type=int, default=30, help="PPO iterations timed (>= 2)")
-    args = ap.parse_args(argv)
-    if not args.bench:
-        ap.error("nothing to do: use --bench (train on BALLU with run_all.py or python -m experiments.ppo_ballu)")
-    for opt, value, ok in (("--envs", args.envs, args.envs >= 1), ("--iters", args.iters, args.iters >= 2),
-                           ("--workers", args.workers, 1 <= args.workers <= args.envs)):
+    from experiments import args
+    ap = args.program("python ppo.py", COMMANDS)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    b = args.command(sub, "bench", "env-only vs end-to-end training rate", COMMANDS)
+    b.add_argument("--env", default="ballu", help="module offering make_env(num_envs, workers) (default ballu)")
+    args.add_workers(b, "env worker processes, 1..--envs")
+    b.add_argument("--envs", type=int, default=PPOConfig.num_envs, help="lanes in all (>= 1)")
+    b.add_argument("--iters", type=int, default=30, help="PPO iterations timed (>= 2)")
+    a = args.parse(ap, argv, {"--bench": ("bench", False)})
+    for opt, value, ok in (("--envs", a.envs, a.envs >= 1), ("--iters", a.iters, a.iters >= 2),
+                           ("--workers", a.workers, 1 <= a.workers <= a.envs)):
         if not ok:
             ap.error(f"{opt} {value} must be " + {"--envs": ">= 1", "--iters": ">= 2"}.get(opt, "in [1, --envs]"))
     try:
-        make_env = importlib.import_module(args.env).make_env
+        make_env = importlib.import_module(a.env).make_env
     except (ImportError, AttributeError) as e:
-        ap.error(f"--env {args.env}: not a module offering make_env(num_envs, workers) ({e})")
-    bench(make_env, PPOConfig(num_envs=args.envs), args.workers, args.iters)
+        ap.error(f"--env {a.env}: not a module offering make_env(num_envs, workers) ({e})")
+    bench(make_env, PPOConfig(num_envs=a.envs), a.workers, a.iters)
+    return 0
 
 
 if __name__ == "__main__":
-    _main()
+    raise SystemExit(_main())

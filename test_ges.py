@@ -1312,14 +1312,14 @@ def test_ballu_score_of_a_design_does_not_depend_on_its_call_mates():
                                        (["--seed", "-1"], "--seed -1 must be in [0, 2**64 - 1]"),
                                        (["--entropy", "nan"], "--entropy nan must be finite"),
                                        (["--init-mean", "inf"], "--init-mean inf must be finite"),
-                                       (["--design", "foo"], "--design 'foo' must be baseline, d2c, d2 or four"),
-                                       (["--design", "1,2"], "--design '1,2' must be baseline, d2c, d2 or four"),
-                                       (["--design", "0.45,0.45,nan,0.01"], "--design: gcr=nan is outside"),
-                                       (["--design", "2,2,2,2"], "--design: l_f=2.0 is outside [0.05, 1.0]")])
+                                       (["--design", "foo"], "design 'foo': 'foo' is not name=value"),
+                                       (["--design", "1,2"], "design '1,2': '1' is not name=value"),
+                                       (["--design", "gcr=nan"], "design 'gcr=nan': gcr=nan is outside"),
+                                       (["--design", "l=2"], "design 'l=2': l_f=2.0 is outside [0.05, 1.0]")])
 def test_experiments_ppo_ballu_rejects_out_of_range_numbers(argv, msg, tmp_path, capsys):
     """experiments.ppo_ballu train: one line naming the option and its range, and nothing written."""
     with pytest.raises(SystemExit) as e:
-        ppo_ballu.main(["train", str(tmp_path / "out"), *argv])
+        ppo_ballu.main(["train", "--out", str(tmp_path / "out"), *argv])
     assert e.value.code == 2 and msg in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
@@ -1927,15 +1927,14 @@ def test_ges_damaged_state_names_the_file_and_what_to_do(synthetic_run, tmp_path
 
 
 @pytest.mark.parametrize("argv, msg", [
-    (["--demo", "OUT", "--seed", "-7"], "--seed -7 must be an integer >= 0"),
-    (["--demo", "OUT", "--workers", "0"], "--workers 0 must be an integer >= 1"),
-    (["--demo", "OUT", "--workers", "-2"], "--workers -2 must be an integer >= 1"),
-    (["--demo", " "], "--demo needs a folder name"), (["--demo", "/proc/ges_demo_test"], "cannot write there"),
-    (["--demo", "FILE"], "exists and is not a folder"),
-    (["--demo", "OUT", "--K", "0"], "--K 0 must be 'auto' or an integer >= 1"),
-    (["--demo", "OUT", "--K", "many"], "--K many must be 'auto' or an integer >= 1"),
-    (["--demo", "OUT", "--sites", "0"], "--sites 0 must be an integer >= 1"),
-    (["--K", "auto"], "--K and --sites go with --demo OUT_DIR")])
+    (["demo", "--out", "OUT", "--seed", "-7"], "--seed -7 must be an integer >= 0"),
+    (["demo", "--out", "OUT", "--workers", "0"], "--workers 0 must be an integer >= 1"),
+    (["demo", "--out", "OUT", "--workers", "-2"], "--workers -2 must be an integer >= 1"),
+    (["demo", "--out", " "], "--out needs a folder name"), (["demo", "--out", "/proc/ges_demo_test"], "cannot write"),
+    (["demo", "--out", "FILE"], "exists and is not a folder"),
+    (["demo", "--out", "OUT", "--K", "0"], "--K 0 must be 'auto' or an integer >= 1"),
+    (["demo", "--out", "OUT", "--K", "many"], "--K many must be 'auto' or an integer >= 1"),
+    (["demo", "--out", "OUT", "--sites", "0"], "--sites 0 must be an integer >= 1")])
 def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tmp_path, capsys):
     (tmp_path / "file").write_text("a file")
     out = str(tmp_path / "demo")
@@ -2048,12 +2047,12 @@ def test_ges_adaptive_bad_settings_name_the_parameter(kw, words):
 
 
 def test_ges_demo_adaptive_ends_with_k_coverage_and_score(tmp_path, capsys):
-    assert ges.main(["--demo", str(tmp_path / "d"), "--K", "auto", "--sites", "2", "--seed", "1"]) == 0
+    assert ges.main(["demo", "--out", str(tmp_path / "d"), "--K", "auto", "--sites", "2", "--seed", "1"]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     m = re.fullmatch(r"final K = (\d+), coverage = ([\d.]+) %, mean score = ([\d.]+)", last)
     assert m and 1 <= int(m[1]) <= 8 and float(m[3]) > 0, last
     assert os.path.getsize(tmp_path / "d" / "territories.png") > 20_000
-    assert ges.main(["--demo", str(tmp_path / "f"), "--K", "2", "--sites", "2", "--seed", "1"]) == 0
+    assert ges.main(["demo", "--out", str(tmp_path / "f"), "--K", "2", "--sites", "2", "--seed", "1"]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1].startswith("final K = 2, ")
 
 
@@ -2675,6 +2674,31 @@ def test_run_all_set_overrides_a_budget_kept_and_checked_by_name(tmp_path, capsy
                              "--out", str(tmp_path / "p")]) == 0
         plans.append(float(re.search(r"total +([\d.]+) h", capsys.readouterr().out).group(1)))
     assert plans[1] > plans[0]
+
+
+@pytest.mark.slow
+def test_run_all_cells_run_alone_with_the_full_runs_numbers(smoke_run, tmp_path, capsys):
+    """--set cells=ramp-d2 runs that cell alone (its baseline-design policy, e2e policies, GES, step-matched MLP,
+    Table II row, figures; no Table III, Fig. 7 or cost, whose cells it leaves out), and every number it makes is
+    the full run's: seeds derive from names, never from what else runs. Its plan is smaller."""
+    out = str(tmp_path / "one")
+    assert run_all.main(["--preset", "smoke", "--out", out, "--workers", "1", "--seed", "3",
+                         "--set", "cells=ramp-d2"]) == 0
+    mine, full = raw_numbers(out), raw_numbers(smoke_run)
+    assert sorted(os.listdir(os.path.join(out, "policies"))) == ["baseline-ramp", "mlp-ramp-d2", "mlp_matched-ramp-d2",
+                                                                  "moe-ramp-d2"]
+    assert os.listdir(os.path.join(out, "ges")) == ["ramp-d2-K3-fps-lloyd"]
+    assert mine and [k for k in mine if mine[k] != full.get(k)] == []
+    res = read_json(os.path.join(out, "results.json"))["stages"]
+    assert list(res["table2"]["cells"]) == ["ramp-d2"] and res["table3"] == res["ksens"] == res["cost"] == {}
+    rep = read_text(os.path.join(out, "REPORT.md"))
+    assert "| ramp | D2 |" in rep and "| obstacle | D2 |" not in rep and "## Table III" not in rep
+    assert "(`--set`): cells=ramp-d2" in rep
+    hours = []
+    for cells in ([], ["--set", "cells=ramp-d2"]):
+        assert run_all.main(["--preset", "smoke", "--plan", "--workers", "1", "--out", str(tmp_path / "p")] + cells) == 0
+        hours.append(float(re.search(r"total .* = ([\d.]+) min", capsys.readouterr().out).group(1)))
+    assert hours[1] < hours[0]
 
 
 @pytest.mark.slow
@@ -3707,3 +3731,91 @@ def test_use_help_lists_examples(capsys):
         with pytest.raises(SystemExit) as e:
             use.main(argv + ["--help"])
         assert e.value.code == 0 and "examples:" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# One command-line vocabulary (experiments/args.py, issue 97): --design, --out, --workers, help with examples
+# ----------------------------------------------------------------------------------------------------------
+COMMAND_LINES = [   # (the module holding a file's main, its name, argv); [] = run with no argument
+    ("experiments.ballu_bench", "main", []), ("experiments.ballu_bench", "main", ["bench", "--help"]),
+    ("experiments.ballu_bench", "main", ["strip", "--help"]),
+    ("ppo", "_main", []), ("ppo", "_main", ["bench", "--help"]),
+    ("ges", "main", []), ("ges", "main", ["demo", "--help"]), ("ges", "main", ["sweep", "--help"]),
+    ("ges", "main", ["bench", "--help"]),
+    ("tpe", "main", []), ("tpe", "main", ["demo", "--help"]), ("tpe", "main", ["bench", "--help"]),
+    ("experiments.use", "main", ["--help"]), ("experiments.use", "main", ["watch", "--help"]),
+    ("experiments.use", "main", ["score", "--help"]),
+    ("experiments.ballu_capability", "main", ["--help"]),
+    ("experiments.ges_adaptive", "main", ["--help"]), ("experiments.ges_adaptive", "main", ["run", "--help"]),
+    ("experiments.ges_adaptive", "main", ["report", "--help"]),
+    ("experiments.ges_demo", "main", ["--help"]), ("experiments.ges_lanes", "main", ["--help"]),
+    ("experiments.ppo_ballu", "main", ["--help"]), ("experiments.ppo_ballu", "main", ["train", "--help"]),
+    ("experiments.ppo_ballu", "main", ["strip", "--help"]),
+    ("experiments.ppo_diagnose", "main", ["--help"]), ("experiments.ppo_protocol", "main", ["--help"]),
+    ("experiments.probe_agreement", "main", ["--help"]), ("experiments.same_results", "main", ["--help"]),
+    ("run_all", "main", ["--help"]),
+]
+
+
+@pytest.mark.parametrize("module, fn, argv", COMMAND_LINES, ids=[f"{m}:{' '.join(a) or '(none)'}"
+                                                                 for m, _, a in COMMAND_LINES])
+def test_every_command_line_help_lists_an_example(module, fn, argv, capsys):
+    """--help (and a top-level file run with no argument) exits 0 and ends with examples: one for each command a
+    program lists, the command's own for a command's help; a --workers defaults to every core."""
+    import importlib
+    with pytest.raises(SystemExit) as e:
+        getattr(importlib.import_module(module), fn)(argv)
+    out = capsys.readouterr().out
+    assert e.value.code == 0 and "examples:\n" in out, out
+    lines = [s.split() for s in out.split("examples:\n", 1)[1].splitlines() if s.strip().startswith("python ")]
+    said = {w[3 if w[1] == "-m" else 2] for w in lines if len(w) > (3 if w[1] == "-m" else 2)}
+    assert lines, out
+    listed = re.search(r"positional arguments:\n  \{([a-z,]+)\}", out)   # a program's commands
+    for cmd in listed[1].split(",") if listed else argv[:1] if argv[:1] != ["--help"] else []:
+        assert cmd in said, (cmd, said)
+    options = " ".join(out.split("examples:\n")[0].split())
+    assert "--workers WORKERS" not in options or "default: every core" in options
+
+
+def test_top_level_files_run_bare_print_help():
+    """`python ballu.py`, `ppo.py`, `ges.py`, `tpe.py` with no argument: the help, exit 0 (their __main__ blocks)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    for name in ("ballu.py", "ppo.py", "ges.py", "tpe.py"):
+        p = subprocess.run([sys.executable, name], cwd=here, capture_output=True, text=True, timeout=120)
+        assert p.returncode == 0 and f"python {name} " in p.stdout and "examples:" in p.stdout, (name, p.stderr)
+
+
+def test_args_one_design_form_across_command_lines():
+    """`--design gcr=0.86,spcf=0.008` is one design in run_all.py watch (on D2), ballu.py strip and ppo_ballu's
+    parsers; `optimum` and `baseline` too; `l` sets both legs as D3's `l` does."""
+    from experiments import args, ballu_bench
+    text, d2, d3 = "gcr=0.86,spcf=0.008", ballu.d2("obstacle"), ballu.d3("obstacle")
+    watch = use.parser().parse_args(["watch", QUICK_RUN, "mlp", "obstacle-d2", "--design", text])
+    strip = ballu_bench.parser().parse_args(["strip", "--out", "s.png", "--design", text])
+    train = ppo_ballu._parser().parse_args(["train", "--out", "o", "--design", text])
+    want = [0.45, 0.45, 0.86, 0.008]
+    assert use.design_arg(watch.design, d2).full.tolist() == strip.design.tolist() == want
+    assert ppo_ballu.design_sampler(train.design).design.tolist() == want
+    for name in ("optimum", "baseline"):
+        assert args.full_design(name).tolist() == use.design_arg(name, d2).full.tolist()
+    assert args.full_design("l=0.3,gcr=0.8,spcf=0.01").tolist() == use.design_arg("gcr=0.8,spcf=0.01,l=0.3",
+                                                                                  d3).full.tolist()
+    assert args.full_design("l_f=0.3,gcr=0.8").tolist() == [0.3, 0.45, 0.8, 0.002]   # any design, not only a box's
+    with pytest.raises(args.BadArg, match="l sets both legs"):
+        args.full_design("l=0.3,l_f=0.4")
+
+
+def test_args_old_forms_still_work_with_a_deprecation(capsys):
+    """Four numbers l_f,l_t,gcr,spcf and the flags that became commands (`--demo DIR`): read, with one line
+    naming the new form."""
+    from experiments import args
+    assert args.full_design("0.45,0.45,0.86,0.008").tolist() == args.full_design("gcr=0.86,spcf=0.008").tolist()
+    assert capsys.readouterr().err.strip() == ("--design 0.45,0.45,0.86,0.008: four numbers are deprecated; use "
+                                               "--design l_f=0.45,l_t=0.45,gcr=0.86,spcf=0.008")
+    old = ges_demo.OLD_FLAGS
+    assert args.legacy(["--seed", "1", "--demo", "d", "--K", "2"], old, "python ges.py") == [
+        "demo", "--out", "d", "--seed", "1", "--K", "2"]
+    assert capsys.readouterr().err == ("python ges.py: --demo is deprecated: use python ges.py demo --out d --seed 1 "
+                                       "--K 2\n")
+    assert args.legacy(["--demo=d"], old, "p") == ["demo", "--out", "d"]
+    assert args.legacy(["--sweep"], old, "p") == ["sweep"] and args.legacy(["demo"], old, "p") == ["demo"]

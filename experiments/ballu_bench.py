@@ -1,11 +1,12 @@
 """experiments/ballu_bench.py -- the simulator's throughput beside the previous robot's; ballu.py's command line.
 
-    python ballu.py --bench [--lanes 16] [--workers 2]    # or: python -m experiments.ballu_bench --bench
-    python ballu.py --strip PNG [--task obstacle --level 30 --design L_F L_T GCR SPCF --period 12 --mode sync]
+    python ballu.py bench [--envs 32] [--workers 2]    # or: python -m experiments.ballu_bench bench
+    python ballu.py strip --out strip.png [--task obstacle --level 30 --design gcr=0.86,spcf=0.008 --period 12]
 
---bench prints robot-physics-steps/s (200 Hz): a sweep over lanes per PyBullet world on one core, the default robot
+`bench` prints robot-physics-steps/s (200 Hz): a sweep over lanes per PyBullet world on one core, the default robot
 beside PREVIOUS_ROBOT on one core and on `--workers` workers, and `ballu.score` on 1 and on `--workers` workers.
-Results and their reading: docs/speed/README.md. [ours] throughout. --strip: report.strip.motion_strip of a pump gait.
+Results and their reading: docs/speed/README.md. [ours] throughout. `strip`: report.strip.motion_strip of a pump
+gait.
 """
 from __future__ import annotations
 
@@ -18,8 +19,9 @@ from dataclasses import replace
 import numpy as np
 
 import ballu
-from ballu import (ACT_DIM, BASELINE, DESIGN_NAMES, HARDWARE_DRAG, MAX_LEVEL, TASKS, BalluConfig, BalluEnv, PumpGait,
-                   VecBallu, check_design, score)
+from ballu import (ACT_DIM, BASELINE, HARDWARE_DRAG, MAX_LEVEL, TASKS, BalluConfig, BalluEnv, PumpGait, VecBallu,
+                   score)
+from experiments import args
 from report.strip import motion_strip
 
 # The robot before the simulator matched the authors' current one: balloon drag, 45 deg spring preload, each
@@ -116,40 +118,47 @@ def bench(lanes: int = 16, workers: int = 2, control_steps: int = 200, repeats: 
     return m
 
 
+OLD_FLAGS = {"--bench": ("bench", False), "--strip": ("strip", True)}   # before issue 97: the flags, deprecated
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = args.program("python ballu.py", __doc__, ballu.__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    b = args.command(sub, "bench", "print simulator throughput", __doc__)
+    b.add_argument("--envs", type=int, help="lanes in all, split evenly over --workers (default: 16 per worker)")
+    args.add_workers(b)
+    st = args.command(sub, "strip", "write a motion strip (PNG) of one pump-gait episode", __doc__)
+    st.add_argument("--out", required=True, metavar="PNG", help="the PNG to write")
+    st.add_argument("--task", default="obstacle", choices=TASKS)
+    st.add_argument("--level", type=int, default=30, help=f"terrain level of the strip, 0..{MAX_LEVEL}")
+    st.add_argument("--design", type=args.full_design_type, default=BASELINE, help=args.DESIGN_HELP
+                    + "; default baseline")
+    st.add_argument("--period", type=int, default=12, help="pump gait period in control steps (>= 2)")
+    st.add_argument("--mode", default="sync", choices=("sync", "alternate"), help="pump gait mode")
+    return ap
+
+
 def main(argv=None):
-    """The command line of `python ballu.py` and of this module: --bench and/or --strip PNG."""
-    ap = argparse.ArgumentParser(prog="python ballu.py", description=ballu.__doc__.splitlines()[0])
-    ap.add_argument("--bench", action="store_true", help="print simulator throughput")
-    ap.add_argument("--lanes", type=int, default=16, help="lanes per worker in the bench (>= 1)")
-    ap.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
-    ap.add_argument("--strip", metavar="PNG", help="write a motion strip of one pump-gait episode")
-    ap.add_argument("--task", default="obstacle", choices=TASKS)
-    ap.add_argument("--level", type=int, default=30, help=f"terrain level of the strip, 0..{MAX_LEVEL}")
-    ap.add_argument("--design", type=float, nargs=4, default=BASELINE.tolist(), metavar=DESIGN_NAMES)
-    ap.add_argument("--period", type=int, default=12, help="pump gait period in control steps (>= 2)")
-    ap.add_argument("--mode", default="sync", choices=("sync", "alternate"), help="pump gait mode")
-    args = ap.parse_args(argv)
-    if not (args.bench or args.strip):
-        ap.error("nothing to do: give --bench and/or --strip PNG (audit and capability: python -m "
-                 "experiments.ballu_capability; a learned policy's strip: python -m experiments.ppo_ballu strip)")
-    for opt, value, rule, ok in (("--workers", args.workers, ">= 1", args.workers >= 1),
-                                 ("--lanes", args.lanes, ">= 1", args.lanes >= 1),
-                                 ("--level", args.level, f"in [0, {MAX_LEVEL}]", 0 <= args.level <= MAX_LEVEL),
-                                 ("--period", args.period, ">= 2", args.period >= 2)):
+    """The command line of `python ballu.py` and of this module: bench, or strip --out PNG."""
+    ap = parser()
+    a = args.parse(ap, argv, OLD_FLAGS)
+    if a.cmd == "bench":
+        if a.workers < 1:
+            ap.error(f"--workers {a.workers} must be >= 1")
+        envs = 16 * a.workers if a.envs is None else a.envs
+        if envs < a.workers or envs % a.workers:
+            ap.error(f"--envs {envs} must be a multiple of --workers {a.workers} (each worker steps as many lanes)")
+        bench(envs // a.workers, a.workers)
+        return 0
+    for opt, value, rule, ok in (("--level", a.level, f"in [0, {MAX_LEVEL}]", 0 <= a.level <= MAX_LEVEL),
+                                 ("--period", a.period, ">= 2", a.period >= 2)):
         if not ok:
             ap.error(f"{opt} {value} must be {rule}")
     try:
-        check_design(args.design, what="--design")
-    except ValueError as e:
-        ap.error(str(e))
-    if args.bench:
-        bench(args.lanes, args.workers)
-    if args.strip:
-        try:
-            print("wrote", motion_strip(args.strip, PumpGait(args.period, args.mode), args.task, args.level,
-                                        np.array(args.design)))
-        except OSError as e:
-            ap.error(f"--strip {args.strip!r} cannot be written: {e.strerror}")
+        print("wrote", motion_strip(a.out, PumpGait(a.period, a.mode), a.task, a.level, a.design))
+    except OSError as e:
+        ap.error(f"--out {a.out!r} cannot be written: {e.strerror}")
+    return 0
 
 
 if __name__ == "__main__":

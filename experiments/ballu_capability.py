@@ -14,7 +14,6 @@ Results and their reading: docs/capability/README.md. [ours] throughout: the pap
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import replace
@@ -24,6 +23,7 @@ import numpy as np
 from ballu import (BALLOON, BASELINE, D2_CENTRE, HARDWARE_DRAG, JOINT_LIMITS, JOINTS, MAX_LEVEL, TABLE_I_HIGH,
                    TABLE_I_LOW, BalluConfig, BalluEnv, PumpGait, check_design, level_score, score, stand,
                    surface_height, task_geometry, to_base_frame)
+from experiments import args
 from experiments.ballu_bench import PREVIOUS_ROBOT
 from runkit.lanes import InProcess, plain_call, shared_pool
 
@@ -345,28 +345,28 @@ def floors_table(designs=FLOOR_DESIGNS, workers: int = 2) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m experiments.ballu_capability", description=__doc__.splitlines()[0])
+    ap = args.program("python -m experiments.ballu_capability", __doc__)
     ap.add_argument("--audit", type=int, metavar="EPISODES", help="random open-loop stability and energy audit")
     ap.add_argument("--capability", action="store_true", help="open-loop search: what the robot can do")
     ap.add_argument("--floors", action="store_true", help="J of the scripted floors (stand, pump gaits)")
     ap.add_argument("--ceiling", choices=("obstacle", "ramp"), metavar="TASK",
                     help="open-loop level on each PPO protocol design (obstacle or ramp)")
-    ap.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
-    args = ap.parse_args(argv)
-    if args.audit is not None and args.audit < 1:
-        ap.error(f"--audit {args.audit}: the number of episodes must be >= 1")
-    if args.workers < 1:
-        ap.error(f"--workers {args.workers} must be >= 1")
-    if not (args.audit or args.capability or args.floors or args.ceiling):
+    args.add_workers(ap)
+    a = args.parse(ap, argv)
+    if a.audit is not None and a.audit < 1:
+        ap.error(f"--audit {a.audit}: the number of episodes must be >= 1")
+    if a.workers < 1:
+        ap.error(f"--workers {a.workers} must be >= 1")
+    if not (a.audit or a.capability or a.floors or a.ceiling):
         ap.error("nothing to do: give --audit EPISODES, --capability, --floors and/or --ceiling TASK")
-    if args.audit:
-        print(audit_table(args.audit, args.workers))
-    if args.capability:
-        print(capability_table(workers=args.workers))
-    if args.floors:
-        print(floors_table(workers=args.workers))
-    if args.ceiling:
-        print(ceiling_table(args.ceiling, workers=args.workers))
+    if a.audit:
+        print(audit_table(a.audit, a.workers))
+    if a.capability:
+        print(capability_table(workers=a.workers))
+    if a.floors:
+        print(floors_table(workers=a.workers))
+    if a.ceiling:
+        print(ceiling_table(a.ceiling, workers=a.workers))
 
 
 if __name__ == "__main__":

@@ -1,17 +1,16 @@
-"""Study: GES with adaptive K (ges.py section 9) against fixed K on planted landscapes (docs/ges_adaptive).
+"""Study: GES with adaptive K (ges.py section 8) against fixed K on planted landscapes (docs/ges_adaptive).
 
 For B planted sites (ges_demo.planted: B behaviours, each best in its own region) and 10 seeds per setting, in 2-D and
 3-D, run GES with K = auto (starting at K_max = 8) and with fixed K in {1, 3, 6} and K = B; per run record the final K,
 the rounds to 95 % coverage (or the cap of 20) and the mean score of 2,000 uniform test designs routed by eq. 10.
 
-    python -m experiments.ges_adaptive OUT [--workers 2] [--seeds 10]   # resumable: OUT/runs.jsonl
-    python -m experiments.ges_adaptive OUT --report docs/ges_adaptive   # tables (README.md) and the K figure
+    python -m experiments.ges_adaptive run --out OUT [--workers 2] [--seeds 10]   # resumable: OUT/runs.jsonl
+    python -m experiments.ges_adaptive report OUT --out docs/ges_adaptive   # tables.md and the K figure from OUT
 
 Each run is seconds of one core (numpy only); the runs of one (dim, seed) share their initial states.
 """
 from __future__ import annotations
 
-import argparse
 import copy
 import json
 import os
@@ -24,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import ges  # noqa: E402
-from experiments import ges_demo  # noqa: E402
+from experiments import args, ges_demo  # noqa: E402
 from report.figures import COLORS  # noqa: E402
 
 BS, DIMS, FIXED = (1, 2, 3, 5, 8), (2, 3), (1, 3, 6)
@@ -161,22 +160,26 @@ def figure(runs: list, path: str) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("out")
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--report", metavar="DIR", help="write DIR/tables.md and DIR/k_over_rounds.png from OUT")
-    args = ap.parse_args(argv)
-    runs = load(os.path.join(args.out, "runs.jsonl")) if args.report else run(args.out, args.seeds, args.workers)
+    ap = args.program("python -m experiments.ges_adaptive", __doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = args.command(sub, "run", "run the study (resumes OUT/runs.jsonl) and print its tables", __doc__)
+    r.add_argument("--out", required=True, help="the study's folder: runs.jsonl")
+    r.add_argument("--seeds", type=int, default=10)
+    args.add_workers(r)
+    t = args.command(sub, "report", "write tables.md and k_over_rounds.png from a run's folder", __doc__)
+    t.add_argument("runs", metavar="OUT", help="the folder `run` wrote")
+    t.add_argument("--out", required=True, metavar="DIR", help="where tables.md and k_over_rounds.png go")
+    a = args.parse(ap, argv)
+    runs = load(os.path.join(a.runs, "runs.jsonl")) if a.cmd == "report" else run(a.out, a.seeds, a.workers)
     lines, goals = tables(runs)
     print("\n".join(lines))
     for g, v in goals.items():
         print(g, v)
-    if args.report:
-        os.makedirs(args.report, exist_ok=True)
-        with open(os.path.join(args.report, "tables.md"), "w") as fh:
+    if a.cmd == "report":
+        os.makedirs(a.out, exist_ok=True)
+        with open(os.path.join(a.out, "tables.md"), "w") as fh:
             fh.write("\n".join(lines) + "\n")
-        print(figure(runs, os.path.join(args.report, "k_over_rounds.png")))
+        print(figure(runs, os.path.join(a.out, "k_over_rounds.png")))
     return 0
 
 

@@ -1,12 +1,12 @@
 """experiments/ges_demo.py -- GES (ges.py) on a synthetic landscape, a cheap stand-in for BALLU+PPO (the tests,
 the demo, the adaptive-K study experiments/ges_adaptive.py); the benchmark; ges.py's command line.
 
-    python ges.py --demo OUT [--dim 3] [--seed 0] [--workers 1]   # or: python -m experiments.ges_demo --demo OUT
-    python ges.py --demo OUT --K auto --sites 3    # adaptive K (ges.py section 9) on 3 planted sites; or --K 3
-    python ges.py --sweep                          # rounds to 95 % coverage per (n_init, F) on the demo landscape
-    python ges.py --bench                          # time one coverage estimate and one routing
+    python ges.py demo --out OUT [--dim 3] [--seed 0] [--workers 1]   # or: python -m experiments.ges_demo demo ...
+    python ges.py demo --out OUT --K auto --sites 3   # adaptive K (ges.py section 8) on 3 planted sites; or --K 3
+    python ges.py sweep                               # rounds to 95 % coverage per (n_init, F) on the demo landscape
+    python ges.py bench                               # time one coverage estimate and one routing
 
---demo runs GES to coverage and writes OUT/territories.png (report.figures.plot_territories, the planted regions
+`demo` runs GES to coverage and writes OUT/territories.png (report.figures.plot_territories, the planted regions
 shaded in 2-D). [ours] throughout: the paper has no synthetic landscape.
 """
 from __future__ import annotations
@@ -23,13 +23,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import ges
+from experiments import args
 from ges import (Box, GESConfig, GESResult, SerialExecutor, _atomic_json, coverage, rng_for, route, routed_evaluator,
                  run_ges)
 from report.figures import plot_territories
 
 # ---------------------------------------------------------------------------------------------------------
-# 1. Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, --demo)
+# 1. Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, the demo)
 # ---------------------------------------------------------------------------------------------------------
 @dataclass(eq=False)
 class PlantedLandscape:
@@ -157,7 +157,7 @@ def rounds_to_coverage(dim: int, n_init: int, n_probe: int, seeds=(0, 1, 2), max
     """Rounds GES takes to reach its target coverage on the planted landscape (K = 3 in 2-D, 6 in 3-D), per
     seed, as (rounds, final coverage). Why: coverage grows by refitting each territory to its designs, n_init
     seeds plus the probes it wins, so its growth per round is set by F / n_init, not by F alone; this measures
-    what a preset's probe budget buys (`python ges.py --sweep`)."""
+    what a preset's probe budget buys (`python ges.py sweep`)."""
     land, K = demo_landscape(dim)
     out = []
     for seed in seeds:
@@ -204,64 +204,69 @@ def bench() -> dict:
     return t
 
 
+OLD_FLAGS = {"--demo": ("demo", True), "--sweep": ("sweep", False), "--bench": ("bench", False)}   # deprecated
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = args.program("python ges.py", __doc__, "ges.py -- GES on a synthetic landscape (no robot), and its benchmark")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    d = args.command(sub, "demo", "run GES on the synthetic landscape, write OUT/territories.png", __doc__)
+    d.add_argument("--out", required=True, metavar="OUT", help="the run's folder")
+    d.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
+    d.add_argument("--seed", type=int, default=0, help="an integer >= 0")
+    args.add_workers(d, "processes, >= 1 (> 1: a ProcessPoolExecutor)")
+    d.add_argument("--K", help="on a landscape of --sites sites: 'auto' (adaptive K, ges.py section 8, starting at "
+                   "K_max = 8) or a fixed K >= 1")
+    d.add_argument("--sites", type=int, help="planted sites B >= 1 drawn from --seed (default 3 with --K)")
+    args.command(sub, "sweep", "rounds to 95 %% coverage per (n_init, F), planted landscape, seeds 0-2", __doc__)
+    args.command(sub, "bench", "time coverage and routing", __doc__)
+    return ap
+
+
 def main(argv=None) -> int:
     """The command line of `python ges.py` and of this module; a bad argument is one line naming it and its
-    allowed values (exit 2), checked before anything is written; a failed --demo leaves no folder it created
+    allowed values (exit 2), checked before anything is written; a failed demo leaves no folder it created
     behind."""
-    ap = argparse.ArgumentParser(prog="ges.py", description=ges.__doc__.split("\n")[0])
-    ap.add_argument("--bench", action="store_true", help="time coverage and routing")
-    ap.add_argument("--demo", metavar="OUT_DIR", help="run the synthetic landscape, write territories.png")
-    ap.add_argument("--sweep", action="store_true", help="rounds to 95 %% coverage per (n_init, F), planted "
-                    "landscape, seeds 0-2")
-    ap.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimension of the demo box")
-    ap.add_argument("--seed", type=int, default=0, help="demo: an integer >= 0")
-    ap.add_argument("--workers", type=int, default=1, help="demo: processes, >= 1 (>1 uses a ProcessPoolExecutor)")
-    ap.add_argument("--K", help="demo on a landscape of --sites sites: 'auto' (adaptive K, section 9, starting at "
-                    "K_max = 8) or a fixed K >= 1")
-    ap.add_argument("--sites", type=int, help="demo: planted sites B >= 1 drawn from --seed (default 3 with --K)")
-    args = ap.parse_args(argv)
+    a = args.parse(parser(), argv, OLD_FLAGS)
+    if a.cmd == "bench":
+        bench()
+        return 0
+    if a.cmd == "sweep":
+        sweep()
+        return 0
     made = None
     try:
-        if args.seed < 0:
-            raise ValueError(f"--seed {args.seed} must be an integer >= 0")
-        if args.workers < 1:
-            raise ValueError(f"--workers {args.workers} must be an integer >= 1")
-        if args.K is not None and args.K != "auto" and not (args.K.isdigit() and int(args.K) >= 1):
-            raise ValueError(f"--K {args.K} must be 'auto' or an integer >= 1")
-        if args.sites is not None and args.sites < 1:
-            raise ValueError(f"--sites {args.sites} must be an integer >= 1")
-        if (args.K is not None or args.sites is not None) and args.demo is None:
-            raise ValueError("--K and --sites go with --demo OUT_DIR")
-        if args.demo is not None:
-            if not args.demo.strip():
-                raise ValueError("--demo needs a folder name")
-            out = os.path.abspath(args.demo)
-            if os.path.exists(out) and not os.path.isdir(out):
-                raise ValueError(f"--demo {args.demo} exists and is not a folder")
-            made = None if os.path.exists(out) else out
-            try:
-                os.makedirs(out, exist_ok=True)
-                if not os.access(out, os.W_OK):
-                    raise PermissionError("read-only")
-            except OSError as e:
-                raise OSError(f"--demo {args.demo}: cannot write there ({e.strerror or e})") from None
-        if args.bench:
-            bench()
-        if args.demo is not None and args.K is None and args.sites is None:
-            demo(args.demo, args.dim, args.seed, args.workers)
-        elif args.demo is not None:
-            res, m = demo_adaptive(args.demo, args.K or "auto", args.sites or 3, args.dim, args.seed, args.workers)
-            for h in res.history["rounds"][1:]:
-                events = "; ".join(f"{e['kind']} {e['id']}->{e.get('into', e.get('child'))}: {e['reason']}"
-                                   for e in h.get("events", []))
-                print(f"round {h['round']:2d}: K {len(h['mu'])}, coverage {h['coverage']:.1%}"
-                      + (f"  ({events})" if events else ""))
-            print(f"wrote {os.path.join(args.demo, 'territories.png')}")
-            print(f"final K = {len(res.ckpt)}, coverage = {100 * res.coverage:.1f} %, mean score = {m:.4f}")
-        if args.sweep:
-            sweep()
-        if not (args.bench or args.demo is not None or args.sweep):
-            ap.print_help()
+        if a.seed < 0:
+            raise ValueError(f"--seed {a.seed} must be an integer >= 0")
+        if a.workers < 1:
+            raise ValueError(f"--workers {a.workers} must be an integer >= 1")
+        if a.K is not None and a.K != "auto" and not (a.K.isdigit() and int(a.K) >= 1):
+            raise ValueError(f"--K {a.K} must be 'auto' or an integer >= 1")
+        if a.sites is not None and a.sites < 1:
+            raise ValueError(f"--sites {a.sites} must be an integer >= 1")
+        if not a.out.strip():
+            raise ValueError("--out needs a folder name")
+        out = os.path.abspath(a.out)
+        if os.path.exists(out) and not os.path.isdir(out):
+            raise ValueError(f"--out {a.out} exists and is not a folder")
+        made = None if os.path.exists(out) else out
+        try:
+            os.makedirs(out, exist_ok=True)
+            if not os.access(out, os.W_OK):
+                raise PermissionError("read-only")
+        except OSError as e:
+            raise OSError(f"--out {a.out}: cannot write there ({e.strerror or e})") from None
+        if a.K is None and a.sites is None:
+            demo(a.out, a.dim, a.seed, a.workers)
+            return 0
+        res, m = demo_adaptive(a.out, a.K or "auto", a.sites or 3, a.dim, a.seed, a.workers)
+        for h in res.history["rounds"][1:]:
+            events = "; ".join(f"{e['kind']} {e['id']}->{e.get('into', e.get('child'))}: {e['reason']}"
+                               for e in h.get("events", []))
+            print(f"round {h['round']:2d}: K {len(h['mu'])}, coverage {h['coverage']:.1%}"
+                  + (f"  ({events})" if events else ""))
+        print(f"wrote {os.path.join(a.out, 'territories.png')}")
+        print(f"final K = {len(res.ckpt)}, coverage = {100 * res.coverage:.1f} %, mean score = {m:.4f}")
         return 0
     except (ValueError, OSError) as e:   # bad arguments, an unwritable folder, a run_dir of another run
         if made and os.path.isdir(made):

@@ -18,7 +18,6 @@ RUN: a finished `run_all.py` output folder (its preset given by --preset). Resul
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import time
@@ -31,6 +30,7 @@ import ballu
 import ges
 import ppo
 import run_all
+from experiments import args
 from runkit.stats import paired_comparison
 
 
@@ -86,8 +86,8 @@ def level_moves(folder: str, K: int, rounds: int) -> float:
     return float(np.mean(moves))
 
 
-def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=None) -> dict:
-    """Train the K specialists of one layout and seed (two at a time), score them routed on the test designs.
+def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=None, workers=2) -> dict:
+    """Train the K specialists of one layout and seed (`workers` at a time), score them routed on the test designs.
     `rounds`: None = the run's; a preset whose ges_round_steps differs from the run's names its own folder."""
     tag = f"{lanes}x{rollout}{variant}_seed{seed}"
     if rounds is not None or preset.ges_round_steps != run_all.PRESETS[preset.name].ges_round_steps:
@@ -104,7 +104,7 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
                                                     preset.policy_rule)
     rounds = result.rounds if rounds is None else rounds
     t0 = time.time()
-    with ProcessPoolExecutor(2) as ex:
+    with ProcessPoolExecutor(workers) as ex:
         ckpts = list(ex.map(specialist, *zip(*[(task, sp, p, mlp, result.mu_unit[k], result.sigma_unit[k],
                                                 result.space, k, seed, rounds, folder, variant == "u")
                                                for k in range(K)])))
@@ -114,7 +114,7 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
     routed, J = result.route(designs), np.empty(len(designs))
     for k in np.unique(routed):
         J[routed == k] = run_all.score_policy(ppo.load_policy(ppo.scored_path(ckpts[k], preset.policy_rule)),
-                                              space.full(designs[routed == k]), task, preset, 2)
+                                              space.full(designs[routed == k]), task, preset, workers)
     res = {"layout": [lanes, rollout], "uniform": variant == "u", "scratch": variant == "s", "seed": seed,
            "rounds": rounds, "round_steps": preset.ges_round_steps, "J": J.tolist(), "routed": routed.tolist(),
            "level_move": level_moves(folder, K, rounds), "train_s": train_s}
@@ -129,7 +129,7 @@ def paired(a, b) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = args.program("python -m experiments.ges_lanes", __doc__)
     ap.add_argument("run", help="a finished run_all.py output folder")
     ap.add_argument("--preset", default="quick", choices=tuple(run_all.PRESETS))
     ap.add_argument("--task", default="obstacle", choices=("obstacle", "ramp"))
@@ -138,9 +138,11 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--rounds", type=int, default=None, help="rounds per specialist (default: the run's)")
     ap.add_argument("--round-steps", type=int, default=None, help="PPO steps per round (default: the preset's)")
-    ap.add_argument("--out", required=True)
-    a = ap.parse_args(argv)
-    for name in ("rounds", "round_steps"):
+    ap.add_argument("--out", required=True, metavar="DIR", help="the study's folder (resumed: each layout and seed "
+                    "keeps its result.json)")
+    args.add_workers(ap)
+    a = args.parse(ap, argv)
+    for name in ("rounds", "round_steps", "workers"):
         if getattr(a, name) is not None and getattr(a, name) < 1:
             ap.error(f"--{name.replace('_', '-')}={getattr(a, name)} must be >= 1")
     preset, task, sp = run_all.PRESETS[a.preset], a.task, a.space
@@ -160,7 +162,7 @@ def main(argv=None):
     for lanes, rollout, variant in layouts(a.layouts):
         name = f"{lanes}x{rollout}" + {"": "", "u": " uniform (control)", "s": " from scratch"}[variant]
         for s in seeds:
-            r = one(a.run, task, sp, preset, lanes, rollout, variant, s, a.out, a.rounds)
+            r = one(a.run, task, sp, preset, lanes, rollout, variant, s, a.out, a.rounds, a.workers)
             per_layout.setdefault(name, []).append(np.mean(r["J"]) - np.mean(mlp))
             rows.append(f"| {name} | {s} | {np.mean(r['J']):.2f} | {paired(r['J'], mlp)} | "
                         f"{r['level_move']:+.2f} | {r['train_s']:.0f} |")

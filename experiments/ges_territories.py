@@ -144,7 +144,7 @@ def main(argv=None) -> int:
         p.add_argument(a)
     p.add_argument("--cells", default="obstacle-d2,obstacle-d3")
     p.add_argument("--designs", type=int, default=12)
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     p = sub.add_parser("table")
     p.add_argument("terrs", nargs="+")
     p.add_argument("--out")

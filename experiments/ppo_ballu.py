@@ -1,7 +1,8 @@
 """experiments/ppo_ballu.py -- train one PPO policy on BALLU, or film one, from the command line.
 
-    python -m experiments.ppo_ballu train OUT --task obstacle --design baseline --steps 1000000 [--score]
-    python -m experiments.ppo_ballu strip PNG --policy OUT/policy.pt --task obstacle --level 16
+    python -m experiments.ppo_ballu train --out OUT --task obstacle --design baseline --steps 1000000 [--score]
+    python -m experiments.ppo_ballu train --out OUT --design gcr=0.86,spcf=0.008 --workers 2
+    python -m experiments.ppo_ballu strip --out strip.png --policy OUT/policy.pt --task obstacle --level 16
 
 `train` writes OUT/policy.pt (resumed if it exists), OUT/log.csv and OUT/curve.png; with --score it prints J on
 the design (8 uniform designs for --design d2). Every argument is checked before anything is written.
@@ -18,30 +19,20 @@ import numpy as np
 
 import ballu
 import ppo
+from experiments import args
 from report.strip import motion_strip
 
-NAMED_DESIGNS = {"baseline": ballu.BASELINE, "d2c": ballu.D2_CENTRE}
+DESIGN_HELP = f"{args.DESIGN_HELP}; or d2c (D2's centre) or d2 (uniform over D2)"
 
 
 def design_sampler(text: str):
-    """--design: baseline | d2c (the centre of D2) | d2 (uniform over D2) | l_f,l_t,gcr,spcf; a ValueError
-    naming what is wrong otherwise."""
-    if text in NAMED_DESIGNS:
-        return ballu.FixedDesign(NAMED_DESIGNS[text])
+    """--design: experiments/args.py's form (full_design), or d2c (the centre of D2) or d2 (uniform over D2), the
+    designs this study trained on; args.BadArg naming what is wrong otherwise."""
+    if text == "d2c":
+        return ballu.FixedDesign(ballu.D2_CENTRE)
     if text == "d2":
         return ballu.UniformDesign(ballu.d2())
-    return ballu.FixedDesign(parse_design(text, "baseline, d2c, d2 or "))
-
-
-def parse_design(text: str, others: str = "") -> np.ndarray:
-    """--design l_f,l_t,gcr,spcf as a checked design (4,); a ValueError naming what is wrong otherwise."""
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) != 4:
-        raise ValueError(f"--design {text!r} must be {others}four numbers l_f,l_t,gcr,spcf")
-    return ballu.check_design(values, what="--design")[0]
+    return ballu.FixedDesign(args.full_design(text))
 
 
 def start_levels(text: str):
@@ -61,13 +52,13 @@ def start_levels(text: str):
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m experiments.ppo_ballu", description=__doc__.splitlines()[0])
+    ap = args.program("python -m experiments.ppo_ballu", __doc__)
     sub = ap.add_subparsers(dest="mode", required=True)
-    tr = sub.add_parser("train", help="train one policy (resumes OUT/policy.pt)")
-    tr.add_argument("out", metavar="OUT_DIR")
+    tr = args.command(sub, "train", "train one policy (resumes OUT/policy.pt)", __doc__)
+    tr.add_argument("--out", required=True, metavar="OUT", help="the policy's folder")
     tr.add_argument("--kind", default="mlp", choices=tuple(ppo.POLICIES))
     tr.add_argument("--steps", type=int, default=1_000_000, help="control steps (>= 1)")
-    tr.add_argument("--envs", type=int, default=ppo.PPOConfig.num_envs, help="parallel envs (>= 1)")
+    tr.add_argument("--envs", type=int, default=ppo.PPOConfig.num_envs, help="lanes in all (>= 1)")
     tr.add_argument("--rollout", type=int, default=ppo.PPOConfig.num_steps, help="steps per env and update")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--start-level", type=start_levels, default="task",
@@ -76,72 +67,72 @@ def _parser():
     tr.add_argument("--init-mean", type=float, default=0.5, help="initial mean action (0.5 = servo half way)")
     tr.add_argument("--entropy", type=float, default=ppo.PPOConfig.entropy_coef, help="entropy bonus (>= 0)")
     tr.add_argument("--score", action="store_true", help="score the trained policy (J, 20 episodes)")
-    st = sub.add_parser("strip", help="a motion strip (PNG) of one episode of a trained policy")
-    st.add_argument("png", metavar="PNG")
+    st = args.command(sub, "strip", "a motion strip (PNG) of one episode of a trained policy", __doc__)
+    st.add_argument("--out", required=True, metavar="PNG", help="the PNG to write")
     st.add_argument("--policy", metavar="CKPT", required=True, help="a checkpoint of ppo.py")
     st.add_argument("--level", type=int, default=30, help=f"terrain level, 0..{ballu.MAX_LEVEL}")
     for p in (tr, st):
         p.add_argument("--task", default="obstacle", choices=ballu.TASKS)
-        p.add_argument("--design", default="baseline", help="baseline | d2c | d2 (uniform) | l_f,l_t,gcr,spcf")
-        p.add_argument("--workers", type=int, default=2, help="worker processes (1..--envs)")
+        p.add_argument("--design", default="baseline", help=DESIGN_HELP + "; default baseline")
+        args.add_workers(p, "worker processes, 1..--envs")
     return ap
 
 
-def _check_train(ap, args):
-    checks = (("--steps", args.steps, ">= 1", args.steps >= 1),
-              ("--envs", args.envs, ">= 1", args.envs >= 1),
-              ("--rollout", args.rollout, ">= 1", args.rollout >= 1),
-              ("--workers", args.workers, f"in [1, --envs {args.envs}]", 1 <= args.workers <= args.envs),
-              ("--seed", args.seed, "in [0, 2**64 - 1]", 0 <= args.seed < 2 ** 64),
-              ("--entropy", args.entropy, "finite and >= 0", 0 <= args.entropy < math.inf),
-              ("--init-mean", args.init_mean, "finite", abs(args.init_mean) < math.inf))   # NaN fails them all
+def _check_train(ap, a):
+    checks = (("--steps", a.steps, ">= 1", a.steps >= 1),
+              ("--envs", a.envs, ">= 1", a.envs >= 1),
+              ("--rollout", a.rollout, ">= 1", a.rollout >= 1),
+              ("--workers", a.workers, f"in [1, --envs {a.envs}]", 1 <= a.workers <= a.envs),
+              ("--seed", a.seed, "in [0, 2**64 - 1]", 0 <= a.seed < 2 ** 64),
+              ("--entropy", a.entropy, "finite and >= 0", 0 <= a.entropy < math.inf),
+              ("--init-mean", a.init_mean, "finite", abs(a.init_mean) < math.inf))   # NaN fails them all
     for opt, value, rule, ok in checks:
         if not ok:
             ap.error(f"{opt} {value} must be {rule}")
 
 
-def train(args, sampler):
-    cfg = ppo.PPOConfig(num_envs=args.envs, num_steps=args.rollout, init_action_mean=args.init_mean,
-                        entropy_coef=args.entropy)
-    os.makedirs(args.out, exist_ok=True)
-    env = ballu.make_env(cfg.num_envs, args.workers, ballu.BalluConfig(task=args.task, reward_form=args.reward))
-    ck = os.path.join(args.out, "policy.pt")
+def train(a, sampler):
+    cfg = ppo.PPOConfig(num_envs=a.envs, num_steps=a.rollout, init_action_mean=a.init_mean,
+                        entropy_coef=a.entropy)
+    os.makedirs(a.out, exist_ok=True)
+    env = ballu.make_env(cfg.num_envs, a.workers, ballu.BalluConfig(task=a.task, reward_form=a.reward))
+    ck = os.path.join(a.out, "policy.pt")
     try:
-        out = ppo.train(args.kind, env, sampler, args.steps, ck, cfg, seed=args.seed,
-                        start_level=ballu.named_start_levels(args.start_level, args.task),
-                        log_csv=os.path.join(args.out, "log.csv"))
+        out = ppo.train(a.kind, env, sampler, a.steps, ck, cfg, seed=a.seed,
+                        start_level=ballu.named_start_levels(a.start_level, a.task),
+                        log_csv=os.path.join(a.out, "log.csv"))
     finally:
         env.close()
-    ppo.plot_learning_curve(os.path.join(args.out, "log.csv"), os.path.join(args.out, "curve.png"),
-                            f"{args.kind} {args.task} {args.design}")
+    ppo.plot_learning_curve(os.path.join(a.out, "log.csv"), os.path.join(a.out, "curve.png"),
+                            f"{a.kind} {a.task} {a.design}")
     print("trained:", out)
-    if args.score:
-        designs = sampler(np.random.default_rng(123), 8 if args.design == "d2" else 1)
-        s = ballu.score(ppo.load_policy(ck), designs, args.task, workers=args.workers)
+    if a.score:
+        designs = sampler(np.random.default_rng(123), 8 if a.design == "d2" else 1)
+        s = ballu.score(ppo.load_policy(ck), designs, a.task, workers=a.workers)
         print(f"J = {s.round(2).tolist()} (mean {s.mean():.2f})")
 
 
 def main(argv=None):
     ap = _parser()
-    args = ap.parse_args(argv)
+    a = args.parse(ap, argv)
     try:
-        sampler = design_sampler(args.design)
-    except ValueError as e:
+        sampler = design_sampler(a.design)
+    except args.BadArg as e:
         ap.error(str(e))
-    if args.mode == "train":
-        _check_train(ap, args)
-        return train(args, sampler)
-    if not 0 <= args.level <= ballu.MAX_LEVEL:
-        ap.error(f"--level {args.level} must lie in [0, {ballu.MAX_LEVEL}]")
+    if a.mode == "train":
+        _check_train(ap, a)
+        return train(a, sampler)
+    if not 0 <= a.level <= ballu.MAX_LEVEL:
+        ap.error(f"--level {a.level} must lie in [0, {ballu.MAX_LEVEL}]")
     try:
-        policy = ppo.load_policy(args.policy)
+        policy = ppo.load_policy(a.policy)
     except (OSError, ValueError) as e:
         ap.error(f"--policy: {e}")
     design = sampler(np.random.default_rng(0), 1)[0]
     try:
-        print("wrote", motion_strip(args.png, policy, args.task, args.level, design))
+        print("wrote", motion_strip(a.out, policy, a.task, a.level, design))
     except OSError as e:
-        ap.error(f"PNG {args.png!r} cannot be written: {e.strerror}")
+        ap.error(f"--out {a.out!r} cannot be written: {e.strerror}")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """experiments/ppo_diagnose.py -- how a trained policy fails the obstacle: where it stops, how it jumps.
 
-    python -m experiments.ppo_diagnose POLICY.pt --design l_f,l_t,gcr,spcf [--levels 10:40:2] [--strip PNG]
+    python -m experiments.ppo_diagnose POLICY.pt --design gcr=0.839,spcf=0.017 [--levels 10:40:2] [--out strip.png]
 
 Plays one deterministic episode per obstacle level (curriculum off, the policy's mean action, as the score J
 plays them) and prints, per level: where the pelvis ends (the curriculum moves up past x = 1.0 m, down short of
@@ -13,7 +13,8 @@ box) and the highest toe clearance over the box's height in that zone. Each epis
   too low      jumped, but no toe rose above the box's top edge in front of it
   not onto     a toe rose above the box's top, but no toe ever stood on the box (within 2 cm of its top)
   on, fell     a toe stood on the box, yet the pelvis ended short of 1.0 m (slid or fell back)
---strip films the lowest failing level above the lowest passing one (report.strip.motion_strip): where J's walk stops.
+--out PNG films the lowest failing level above the lowest passing one (report.strip.motion_strip): where J's walk
+stops.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ import numpy as np
 
 import ballu
 import ppo
-from experiments.ppo_ballu import parse_design
+from experiments import args
 from report.strip import motion_strip
 
 NEAR, ZONE, JUMP = 0.15, 0.30, 0.03   # m: "at the box", the zone in front of it, a jump's least toe rise
@@ -91,26 +92,22 @@ def _levels(text: str) -> list:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m experiments.ppo_diagnose", description=__doc__.splitlines()[0])
+    ap = args.program("python -m experiments.ppo_diagnose", __doc__)
     ap.add_argument("policy", metavar="POLICY.pt")
-    ap.add_argument("--design", required=True, help="l_f,l_t,gcr,spcf")
+    ap.add_argument("--design", required=True, type=args.full_design_type, help=args.DESIGN_HELP)
     ap.add_argument("--levels", type=_levels, default=_levels("10:40:2"), help="LOW:HIGH:STEP (default 10:40:2)")
-    ap.add_argument("--strip", metavar="PNG", help="film the lowest level above a passed one that does not pass")
-    args = ap.parse_args(argv)
+    ap.add_argument("--out", metavar="PNG", help="film the lowest level above a passed one that does not pass")
+    a = args.parse(ap, argv)
     try:
-        design = parse_design(args.design)
-    except ValueError as e:
-        ap.error(str(e))
-    try:
-        rows = diagnose(args.policy, design, args.levels)
+        rows = diagnose(a.policy, a.design, a.levels)
     except (OSError, ValueError) as e:
         ap.error(str(e))
     print(table(rows))
     passed = [i for i, r in enumerate(rows) if r["verdict"] == "pass"]
     fail = next((r for r in rows[passed[0]:] if r["verdict"] != "pass"), None) if passed else rows[0]
-    if args.strip and fail:
-        policy = ppo.load_policy(args.policy)
-        print("wrote", motion_strip(args.strip, policy, "obstacle", fail["level"], design, frames=10))
+    if a.out and fail:
+        policy = ppo.load_policy(a.policy)
+        print("wrote", motion_strip(a.out, policy, "obstacle", fail["level"], a.design, frames=10))
 
 
 if __name__ == "__main__":

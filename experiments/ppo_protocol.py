@@ -5,14 +5,14 @@ designs at each milestone (1 M and 2 M control steps); a table of mean +- standa
 training-level curves. Every setting shares designs, budgets, seeds and code, so a difference is the setting's.
 Resumable: a milestone's result is kept in result_<steps>.json, and training resumes from its checkpoint.
 
-    python -m experiments.ppo_protocol OUT --settings lr_cap --tasks obstacle,ramp --seeds 0,1,2
+    python -m experiments.ppo_protocol --out OUT --settings lr_cap --tasks obstacle,ramp --seeds 0,1,2
+    python -m experiments.ppo_protocol --out OUT --settings lr_cap --tasks obstacle --design gcr=0.839,spcf=0.017
 
 Results and their reading: docs/ppo_protocol/README.md. J is reproducible bit for bit on one CPU model, not
 across models (`cpu_model`); `--rescore` scores again here what was scored on another.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -26,7 +26,7 @@ import numpy as np
 
 import ballu
 import ppo
-from experiments.ppo_ballu import parse_design
+from experiments import args
 from runkit.files import write_json
 from runkit.logs import read_log, resume_points
 from runkit.plan import cpu_model
@@ -370,41 +370,37 @@ def _int_list(text: str, name: str, low: int) -> list:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m experiments.ppo_protocol", description=__doc__.splitlines()[0])
-    ap.add_argument("out", metavar="OUT_DIR", help="results folder (resumed if it holds runs)")
+    ap = args.program("python -m experiments.ppo_protocol", __doc__)
+    ap.add_argument("--out", required=True, metavar="OUT", help="results folder (resumed if it holds runs)")
     ap.add_argument("--settings", default="lr_cap", help=f"comma list of {sorted(PROTOCOL_SETTINGS)}")
     ap.add_argument("--tasks", default="obstacle,ramp", help="comma list of obstacle, ramp")
     ap.add_argument("--seeds", default="0,1,2", help="comma list of seeds >= 0")
     ap.add_argument("--milestones", default="1000000,2000000", help="control steps at which J is scored")
-    ap.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
+    args.add_workers(ap)
     ap.add_argument("--rescore", action="store_true", help="score again on this CPU model the results scored on "
                     "another (J differs between CPU models), and table this machine's scores")
     ap.add_argument("--table", default="protocol", help="the table's name (NAME.md, NAME_curves.png)")
-    ap.add_argument("--fresh", type=int, default=0, help="also score each milestone's best policy on this many "
-                    f"designs the protocol never draws (seed {FRESH_DESIGN_SEED}; default 0: none)")
-    ap.add_argument("--design", default=None, help="l_f,l_t,gcr,spcf: train on this one design and score on it "
-                    "(default: uniform D2, scored on the 12 held-out designs)")
-    args = ap.parse_args(argv)
-    settings, tasks = args.settings.split(","), args.tasks.split(",")
+    ap.add_argument("--unseen-designs", type=int, default=0, metavar="N", help="also score each milestone's best "
+                    f"policy on N designs the protocol never draws (seed {FRESH_DESIGN_SEED}; default 0: none)")
+    ap.add_argument("--design", type=args.full_design_type, default=None, help="train on this one design and score "
+                    f"on it (default: uniform D2, scored on the 12 held-out designs): {args.DESIGN_HELP}")
+    a = args.parse(ap, argv)
+    settings, tasks = a.settings.split(","), a.tasks.split(",")
     for name, values, allowed in (("--settings", settings, PROTOCOL_SETTINGS), ("--tasks", tasks, ballu.TASKS)):
         if not set(values) <= set(allowed):
             ap.error(f"{name} {','.join(values)}: each must be one of {sorted(allowed)}")
-    seeds = _int_list(args.seeds, "--seeds", 0)
-    milestones = sorted(_int_list(args.milestones, "--milestones", 1))
-    if args.workers < 1:
-        ap.error(f"--workers {args.workers} must be >= 1")
-    if args.fresh < 0 or (args.fresh and args.design is not None):
-        ap.error(f"--fresh {args.fresh} must be >= 0, and 0 with --design (a single design scores on itself)")
-    if not args.table or os.sep in args.table:
-        ap.error(f"--table {args.table!r} must be a plain file name (no {os.sep!r})")
-    design = None
-    if args.design is not None:
-        try:
-            design = parse_design(args.design).tolist()
-        except ValueError as e:
-            ap.error(str(e))
-    print(protocol(args.out, settings, tasks, seeds, milestones, workers=args.workers, rescore=args.rescore,
-                   table=args.table, design=design, fresh=args.fresh))
+    seeds = _int_list(a.seeds, "--seeds", 0)
+    milestones = sorted(_int_list(a.milestones, "--milestones", 1))
+    if a.workers < 1:
+        ap.error(f"--workers {a.workers} must be >= 1")
+    if a.unseen_designs < 0 or (a.unseen_designs and a.design is not None):
+        ap.error(f"--unseen-designs {a.unseen_designs} must be >= 0, and 0 with --design (a single design scores "
+                 "on itself)")
+    if not a.table or os.sep in a.table:
+        ap.error(f"--table {a.table!r} must be a plain file name (no {os.sep!r})")
+    design = None if a.design is None else a.design.tolist()
+    print(protocol(a.out, settings, tasks, seeds, milestones, workers=a.workers, rescore=a.rescore,
+                   table=a.table, design=design, fresh=a.unseen_designs))
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """experiments/probe_agreement.py -- may GES probe with a cheaper score than the paper's J? (docs/probe_agreement)
 
-    python -m experiments.probe_agreement CKPT,CKPT,... [--task obstacle] [--designs 20] [--level-steps 16,8,...]
+    python -m experiments.probe_agreement A.pt,B.pt [--task obstacle] [--designs 20] [--level-steps 16,8,...]
                                           [--episodes 20] [--jitter 0.001] [--workers N] [--seed S]
 
 Scores uniform D2 designs with each checkpoint by the full J and by a probe schedule (`ballu.score`'s
@@ -9,7 +9,6 @@ wall times, against PROBE_BAR.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -19,6 +18,7 @@ from scipy.stats import spearmanr
 
 import ballu
 import ppo
+from experiments import args
 from run_all import BISECTION, TASKS, derive_seed, read_back, say
 from runkit.files import BadInput
 
@@ -100,45 +100,45 @@ def probe_agreement_text(r: dict) -> str:
            if "ceiling" in r else []))
 
 
-def check_args(args) -> dict:
+def check_args(a) -> dict:
     """The command line's arguments as probe_agreement's keywords; BadInput names what is wrong."""
-    ckpts = [c for c in args.ckpts.split(",") if c]
+    ckpts = [c for c in a.ckpts.split(",") if c]
     missing = [c for c in ckpts if not os.path.isfile(c)]
     if len(ckpts) < 2 or missing:
         raise BadInput(f"CKPT,CKPT,... needs >= 2 existing checkpoints, comma-separated; got {len(ckpts)}"
                        + (f", missing: {missing}" if missing else ""))
-    if args.task not in TASKS:
-        raise BadInput(f"--task {args.task} must be one of {TASKS}")
-    if min(args.designs, args.workers, args.episodes) < 1 or args.seed < 0:
-        raise BadInput(f"--designs {args.designs}, --workers {args.workers}, --episodes {args.episodes} must be "
-                       f">= 1 and --seed {args.seed} >= 0")
+    if a.task not in TASKS:
+        raise BadInput(f"--task {a.task} must be one of {TASKS}")
+    if min(a.designs, a.workers, a.episodes) < 1 or a.seed < 0:
+        raise BadInput(f"--designs {a.designs}, --workers {a.workers}, --episodes {a.episodes} must be "
+                       f">= 1 and --seed {a.seed} >= 0")
     try:
-        steps = tuple(ballu.check_level_steps(tuple(int(s) for s in args.level_steps.split(",")), None).tolist())
+        steps = tuple(ballu.check_level_steps(tuple(int(s) for s in a.level_steps.split(",")), None).tolist())
     except ValueError:
-        raise BadInput(f"--level-steps {args.level_steps} must be comma-separated integers in "
+        raise BadInput(f"--level-steps {a.level_steps} must be comma-separated integers in "
                        f"[1, {ballu.MAX_LEVEL}]") from None
-    if not 0 <= args.jitter < 1:
-        raise BadInput(f"--jitter {args.jitter} must lie in [0, 1) (a share of each design axis' range)")
-    return {"ckpts": ckpts, "task": args.task, "n_designs": args.designs, "level_steps": steps,
-            "episodes": args.episodes, "seed": args.seed, "workers": args.workers, "jitter": args.jitter}
+    if not 0 <= a.jitter < 1:
+        raise BadInput(f"--jitter {a.jitter} must lie in [0, 1) (a share of each design axis' range)")
+    return {"ckpts": ckpts, "task": a.task, "n_designs": a.designs, "level_steps": steps,
+            "episodes": a.episodes, "seed": a.seed, "workers": a.workers, "jitter": a.jitter}
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.probe_agreement", description=__doc__.splitlines()[0])
+    ap = args.program("python -m experiments.probe_agreement", __doc__)
     ap.add_argument("ckpts", metavar="CKPT,CKPT,...", help="ppo.py checkpoints, comma-separated (>= 2)")
     ap.add_argument("--task", default="obstacle", help="obstacle or ramp")
-    ap.add_argument("--designs", type=int, default=20, help="uniform D2 designs (default 20)")
+    ap.add_argument("--designs", type=int, default=20, metavar="N", help="uniform D2 designs (default 20)")
     ap.add_argument("--level-steps", default=",".join(map(str, BISECTION)),
                     help=f"the probe schedule (default {','.join(map(str, BISECTION))})")
     ap.add_argument("--episodes", type=int, default=ballu.SCORE_EPISODES,
                     help=f"episodes of the full J (default {ballu.SCORE_EPISODES})")
     ap.add_argument("--jitter", type=float, default=0.0, help="also score the full J on designs moved by this "
                     "share of each range (e.g. 0.001), the ceiling any probe score can reach")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
+    args.add_workers(ap, "processes")
     ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
+    a = args.parse(ap, argv)
     try:
-        print(probe_agreement_text(probe_agreement(**check_args(args))), flush=True)
+        print(probe_agreement_text(probe_agreement(**check_args(a))), flush=True)
     except BadInput as e:
         print(f"{ap.prog}: error: {e}", file=sys.stderr)
         return 2

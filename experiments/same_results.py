@@ -15,6 +15,8 @@ import json
 import os
 import sys
 
+from experiments import args
+
 TIMES, PATHS = ("second", "wall", "created", "reduction_pct"), ("warm_start", "run_dir", "ckpt")
 
 
@@ -64,12 +66,12 @@ def compare(a: str, b: str) -> list:
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 2 or argv[0] in ("-h", "--help"):
-        print(__doc__)
-        return 0 if argv and argv[0] in ("-h", "--help") else 2
-    diffs = compare(*argv)
-    n = len(files(argv[0]))
+    ap = args.program("python -m experiments.same_results", __doc__)
+    ap.add_argument("a", metavar="OLD", help="a run_all output folder")
+    ap.add_argument("b", metavar="NEW", help="another, to compare with OLD")
+    a = args.parse(ap, argv)
+    diffs = compare(a.a, a.b)
+    n = len(files(a.a))
     print("\n".join(diffs) if diffs else f"the same: {n} files (stages, scores, TPE, GES, checkpoints)")
     return 1 if diffs else 0
 

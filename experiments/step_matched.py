@@ -170,11 +170,11 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     p = sub.add_parser("run")
     p.add_argument("out")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     p = sub.add_parser("rescore")
     p.add_argument("work")
     p.add_argument("ges_runs")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (default: every core)")
     p = sub.add_parser("keep")
     for n in ("work", "run_folder", "docs"):
         p.add_argument(n)

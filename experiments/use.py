@@ -3,11 +3,11 @@
     python run_all.py watch docs/overnight/seed0 ges obstacle-d2 --design optimum --level 30 --out anim.gif
     python run_all.py watch docs/overnight/seed0 ges obstacle-d2 --vs mlp --design optimum
     python run_all.py score docs/quick mlp ramp-d3 --design gcr=0.8,spcf=0.01 --design baseline
-    python run_all.py score docs/quick/policies/mlp-obstacle-d2/policy.pt obstacle-d2 --designs d.csv
+    python run_all.py score docs/quick/policies/mlp-obstacle-d2/policy.pt obstacle-d2 --design-file d.csv
 
 Contents:
-  1. designs, one rule for every command line: `design_arg` ("gcr=0.86,spcf=0.008", "optimum", "baseline"),
-     `designs_file` (a CSV with a header of names), `level_arg` (--level, or --height in cm / deg)
+  1. designs: `design_arg` ("gcr=0.86,spcf=0.008", "optimum", "baseline"; experiments/args.py, the rule of every
+     command line), `designs_file` (a CSV with a header of names), `level_arg` (--level, or --height in cm / deg)
   2. policies, one rule: `resolve` (RUN METHOD CELL, or CHECKPOINT CELL, or GES-RUN-FOLDER CELL); `play`, the policy
      a design is played by (GES: the density router, paper eq. 10)
   3. `score`: J per design as the run scores it (run_all.score_policy), each episode's level and final x
@@ -33,6 +33,7 @@ import ballu
 import ges
 import ppo
 import run_all
+from experiments.args import DESIGN_HELP, BadArg, Design, add_workers, command, design_arg, positive, program
 from report import animate
 from report.figures import level_of
 from runkit.files import BadInput, read_json
@@ -40,69 +41,26 @@ from runkit.files import BadInput, read_json
 # ----------------------------------------------------------------------------------------------------------
 # 1. Designs and levels
 # ----------------------------------------------------------------------------------------------------------
-NAMED = {"baseline": dict(zip(ballu.DESIGN_NAMES, ballu.BASELINE.tolist())),   # [paper] Table I; gcr 0.70 outside
-         "optimum": {"gcr": 0.88, "spcf": 0.008}}   # [paper] Sec. V-C, GES's optimum on the obstacle (D2)
-FILL = dict(zip(ballu.DESIGN_NAMES, ballu.BASELINE.tolist()), l=float(ballu.BASELINE[0]))   # names not given [ours]
 METHODS = {"ges": "GES", "mlp": "e2e MLP", "moe": "e2e MoE", "mlp_matched": "e2e MLP (step-matched)",
            "baseline": "baseline design's policy"}
-
-
-class UseError(BadInput):
-    """Bad input: one line naming the value and what is allowed."""
-
-
-@dataclass
-class Design:
-    label: str
-    theta: np.ndarray   # the space's own coordinates (GES routes them)
-    full: np.ndarray    # (l_f, l_t, gcr, spcf): what a lane receives
-
-
-def design_arg(text: str, space) -> Design:
-    """A design of `space` from 'name=value,...' or a name of NAMED. Names not given take ballu.BASELINE's values;
-    a name the space fixes (D2's legs) is accepted at its value only. The box is enforced except for 'baseline',
-    the paper's reference robot (gcr 0.70, below Table I's 0.72), scored as Table II's baseline column scores it."""
-    text = text.strip()
-    given = dict(NAMED.get(text, {}))
-    for part in [] if text in NAMED else [p for p in text.split(",") if p.strip()] or [""]:
-        name, eq, value = (s.strip() for s in part.partition("="))
-        try:
-            if not eq or name not in ballu.SPACE_NAMES:
-                raise ValueError
-            given[name] = float(value)
-        except ValueError:
-            raise UseError(f"design {text!r}: {part.strip()!r} is not name=value with a name of {space.names} "
-                           f"(or a design name: {', '.join(NAMED)})") from None
-    theta = np.array([given.get(n, FILL[n]) for n in space.names])
-    for n, v, lo, hi in zip(space.names, theta, space.lows, space.highs):
-        if text != "baseline" and not lo <= v <= hi:
-            why = "" if n in given else " (the baseline's, not given)"
-            raise UseError(f"design {text!r}: {n}={v:g}{why} is outside {space.task} D{space.d}: allowed range "
-                           f"[{lo:g}, {hi:g}]")
-    full = ballu.BASELINE.astype(float) if text == "baseline" else space.full(theta)[0]
-    implied = dict(zip(ballu.DESIGN_NAMES, full), l=full[0] if full[0] == full[1] else None)
-    for n, v in given.items():
-        if n not in space.names and (implied[n] is None or abs(implied[n] - v) > 1e-9):
-            raise UseError(f"design {text!r}: {n} is not free in {space.task} D{space.d} (free: "
-                           f"{', '.join(space.names)}; {n} = {implied[n]} there)")
-    return Design(text, theta, full)
+UseError = BadArg   # bad input: one line naming the value and what is allowed (experiments/args.py)
 
 
 def designs_file(path: str, space) -> list:
     """Designs from a CSV: a header of parameter names (and optionally `label`), a design a row (design_arg)."""
     if not os.path.isfile(path):
-        raise UseError(f"--designs {path}: no such file")
+        raise UseError(f"--design-file {path}: no such file")
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     if not rows:
-        raise UseError(f"--designs {path}: no designs (a header such as {','.join(space.names)}, a design a row)")
+        raise UseError(f"--design-file {path}: no designs (a header such as {','.join(space.names)}, a design a row)")
     out = []
     for i, row in enumerate(rows):
         label = (row.pop("label", "") or "").strip()
         try:
             out.append(design_arg(",".join(f"{k}={v}" for k, v in row.items()), space))
         except UseError as e:
-            raise UseError(f"--designs {path} line {i + 2}: {e}") from None
+            raise UseError(f"--design-file {path} line {i + 2}: {e}") from None
         out[-1].label = label or out[-1].label
     return out
 
@@ -287,8 +245,8 @@ def score(t: Target, designs: list, episodes: int | None = None, workers: int = 
 
 def cmd_score(a) -> None:
     t = resolve(a.policy, workers=a.workers)
-    designs = [design_arg(s, t.space) for s in a.design or ([] if a.designs else ["optimum"])]
-    designs += designs_file(a.designs, t.space) if a.designs else []
+    designs = [design_arg(s, t.space) for s in a.design or ([] if a.design_file else ["optimum"])]
+    designs += designs_file(a.design_file, t.space) if a.design_file else []
     print(f"scoring {METHODS.get(t.method, t.where)} ({t.where}, {t.task} {t.sp}) on {len(designs)} design(s): "
           f"{a.episodes or t.preset.score_episodes} episodes from level {start_level(t.task, t.preset)} "
           f"({t.preset.name} preset's J), {a.workers} worker(s)", flush=True)
@@ -350,14 +308,6 @@ def cmd_watch(a) -> None:
 # ----------------------------------------------------------------------------------------------------------
 WORDS_HELP = (f"RUN METHOD CELL (a run_all output folder; METHOD: {', '.join(METHODS)}; CELL: obstacle-d2 ... "
               "ramp-d3), or CHECKPOINT CELL, or GES-RUN-FOLDER CELL")
-DESIGN_HELP = ("name=value,... of the cell's space (e.g. gcr=0.86,spcf=0.008; names not given take the baseline's "
-               "values), or optimum (gcr 0.88, spcf 0.008 [paper]) or baseline (Table I)")
-
-
-def positive(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer >= 1")
-    return int(text)
 
 
 def picture(text: str) -> tuple:
@@ -368,18 +318,14 @@ def picture(text: str) -> tuple:
 
 
 def parser() -> argparse.ArgumentParser:
-    fmt, ex = argparse.RawDescriptionHelpFormatter, __doc__.splitlines()[2:6]
-    p = argparse.ArgumentParser(prog="python run_all.py", formatter_class=fmt, epilog="examples:\n" + "\n".join(ex),
-                                description="Watch or score a trained policy or GES run on any design.")
+    p = program("python run_all.py", __doc__, "Watch or score a trained policy or GES run on any design.")
     sub = p.add_subparsers(dest="cmd", required=True)
-    w = sub.add_parser("watch", formatter_class=fmt, help="film one episode as a GIF (or MP4)",
-                       epilog="examples:\n" + "\n".join(ex[:2]))
-    s = sub.add_parser("score", formatter_class=fmt, help="J per design, each episode's level and final x, a CSV",
-                       epilog="examples:\n" + "\n".join(ex[2:]))
+    w = command(sub, "watch", "film one episode as a GIF (or MP4)", __doc__)
+    s = command(sub, "score", "J per design, each episode's level and final x, a CSV", __doc__)
     for q, what in ((w, "watch-<method>[-vs-<method>]-<cell>-L<level>.gif"), (s, "scores-<method>-<cell>.csv")):
         q.add_argument("policy", nargs="+", metavar="WORDS", help=WORDS_HELP)
         q.add_argument("--out", help=f"output file (default: {what} in this folder)")
-    w.add_argument("--design", default="optimum", help=DESIGN_HELP + "; default optimum")
+    w.add_argument("--design", default="optimum", help=f"of the cell's space: {DESIGN_HELP}; default optimum")
     w.add_argument("--vs", metavar="METHOD", help="a second method of the same run, side by side")
     lv = w.add_mutually_exclusive_group()
     lv.add_argument("--level", type=int, help="curriculum level 0..74 (default: J's start level)")
@@ -388,11 +334,10 @@ def parser() -> argparse.ArgumentParser:
     w.add_argument("--fps", type=positive, default=10, help="frames per second of the file; default 10 (2x real time)")
     w.add_argument("--size", type=picture, default=(animate.WIDTH, animate.HEIGHT), help="each panel's picture, WxH")
     w.add_argument("--max-steps", type=positive, help="stop the episode after N control steps (a quick look, tests)")
-    s.add_argument("--design", action="append", help=DESIGN_HELP + "; repeatable; default optimum")
-    s.add_argument("--designs", metavar="CSV", help="a CSV of designs: a header of names (and label), a design a row")
+    s.add_argument("--design", action="append", help=f"of the cell's space: {DESIGN_HELP}; repeatable; default optimum")
+    s.add_argument("--design-file", metavar="CSV", help="a CSV of designs: a header of names (and label), a row each")
     s.add_argument("--episodes", type=positive, help="episodes of J (default: the run's preset's score_episodes)")
-    s.add_argument("--workers", type=positive, default=os.cpu_count() or 1,
-                   help="worker processes scoring the designs (default: every core)")
+    add_workers(s, "worker processes scoring the designs", positive)
     w.set_defaults(run=cmd_watch)
     s.set_defaults(run=cmd_score)
     return p
