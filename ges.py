@@ -33,13 +33,12 @@ specialists can run in a process pool):
 
 Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, router, refit, probes),
 3. initialisation and the run's state, 4. the GES loop (Alg. 1), 5. the routed evaluator; then the machinery:
-6. settings' checks, state files, history and result, 7. executors, 8. adaptive K (an option, ours: merge a
-specialist another serves as well, split a territory its specialist serves unevenly), 9. the command line, whose code lives in experiments/ges_demo.py with the synthetic landscape and the benchmark.
+6. settings' checks, state files, history, result, 7. executors, 8. adaptive K (ours: merge a specialist another
+serves as well, split a territory its specialist serves unevenly), 9. the command line (experiments/ges_demo.py).
 
 Entry points: run_ges(...) -> GESResult, load_result(run_dir), routed_evaluator(result, score_fn); the figure of
-a run's territories is report.figures.plot_territories(history, path). `python ges.py demo --out OUT` runs a
-synthetic landscape and writes OUT/territories.png (`--K auto --sites B` on B planted sites: adaptive K),
-`python ges.py sweep` prints rounds to coverage per (n_init, F) on it, `python ges.py bench` times coverage/routing.
+a run's territories: report.figures.plot_territories. `python ges.py demo --out OUT` runs a synthetic landscape
+(`--K auto --sites B`: adaptive K on B planted sites), `sweep` prints rounds to coverage per (n_init, F), `bench`.
 """
 from __future__ import annotations
 
@@ -48,13 +47,14 @@ import math
 import os
 import sys
 import time
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import Executor, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 from runkit.box import Box   # the design box: names, bounds, the unit cube [paper, Sec. IV-B]
+from runkit.pool import SerialExecutor   # runs each task inline: for debugging and tests
 
 # ---------------------------------------------------------------------------------------------------------
 # 1. Settings and randomness
@@ -94,6 +94,9 @@ class GESConfig:
     split_cooldown: int = 2           # rounds a territory that absorbed another waits before it may split,
                                       #   doubled for each challenger of its own it took back (backoff)
     challenge_rounds: int = 2         # rounds a specialist (the first K, a challenger) trains before a merge test
+    # [ours] after the loop, one more Train on the final territories, the ones the router hands designs to: the
+    # loop never trains on the last refit's (an option for the schedule screen, docs/ges_schedule)
+    final_train: bool = False
 
     def __post_init__(self):
         _check_config(self)   # section 6: one ValueError naming the setting and what is allowed
@@ -284,6 +287,7 @@ class GESState:
     ids: list                 # each specialist's id: its index with a fixed K (adaptive K retires some)
     adapt: dict | None = None     # adaptive K's bookkeeping (section 8): wait, next_id, born, parent, strikes
     task_seconds: list = field(default_factory=list)   # per round, each train and probe task's own seconds
+    final: bool = False       # the final territories trained on (GESConfig.final_train)
 
     @property
     def K(self) -> int:
@@ -316,10 +320,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     next state; `state` is not modified. A specialist is named by its id (its index with a fixed K): its seeds
     and checkpoint files follow it when others are merged away."""
     t, K, ids = state.round, state.K, state.ids
-    # Train (Alg. 1 lines 7-10): each specialist on designs from its own territory, warm-started [paper].
-    samplers = [GaussianSampler(state.mu[k], state.sigma[k], space, seed_for(seed, TRAIN, t, ids[k]))
-                for k in range(K)]
-    ckpt, train_s = train_all(executor, train_fn, run_dir, t, ids, samplers, state.ckpt)
+    ckpt, train_s = train(space, train_fn, run_dir, seed, executor, state)   # Train (Alg. 1 lines 7-10)
     # Probe (lines 11-15, eq. 6): F designs near the 2-sigma borders; every specialist scores every one and the
     # best scorer wins it, ties to the lower index [facts]. Adaptive K's checks share the specialists' one call.
     probes = sample_probes(state.mu, state.sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
@@ -342,15 +343,30 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     return replace(new, history=state.history + [entry])
 
 
+def train(space, train_fn, run_dir, seed, executor, state: GESState) -> tuple[list, list]:
+    """Train (Alg. 1 lines 7-10): each specialist on designs from its own territory, warm-started from its last
+    checkpoint [paper]; (checkpoints, each task's seconds)."""
+    samplers = [GaussianSampler(state.mu[k], state.sigma[k], space, seed_for(seed, TRAIN, state.round, state.ids[k]))
+                for k in range(state.K)]
+    return train_all(executor, train_fn, run_dir, state.round, state.ids, samplers, state.ckpt)
+
+
+def train_final(space, train_fn, run_dir, seed, executor, state: GESState) -> GESState:
+    """GESConfig.final_train [ours]: Train once more, on the final territories, without a probe: a round trains
+    on the territories it starts from, so the last refit's, which route every design (eq. 10), go untrained.
+    The last history entry keeps the new checkpoints (its territories are unchanged)."""
+    ckpt, train_s = train(space, train_fn, run_dir, seed, executor, state)
+    last = dict(state.history[-1], ckpt=list(ckpt), final_train=True)
+    return replace(state, ckpt=ckpt, final=True, history=state.history[:-1] + [last],
+                   task_seconds=state.task_seconds + [{"train": train_s, "probe": []}])
+
+
 def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
             config: GESConfig | None = None, seed: int = 0, executor: Executor | None = None,
             progress: Callable[[str], None] | None = print) -> GESResult:
-    """Run (or resume) GES until MC coverage >= target or max_rounds [paper, Alg. 1].
-
-    The state is saved atomically after every completed round; calling again on the same run_dir resumes at
-    the last completed round and ends with exactly the result of an uninterrupted run (all randomness derives
-    from (seed, round, k)). executor=None uses a ProcessPoolExecutor with os.cpu_count() workers; pass
-    SerialExecutor() to debug. train_fn, score_fn: see the module docstring."""
+    """Run (or resume) GES until MC coverage >= target or max_rounds [paper, Alg. 1]. The state is saved after
+    every round: a rerun on run_dir resumes there and ends with exactly an uninterrupted run's result (every draw
+    derives from (seed, round, k)). executor=None: a process pool of every core; SerialExecutor() to debug."""
     config, space = config or GESConfig(), Box.of(space)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed={seed!r} not allowed: a non-negative integer")
@@ -364,7 +380,7 @@ def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
         say(f"GES init: K={config.K} d={space.d} ({config.init}), coverage {state.history[0]['coverage']:.1%}")
     elif not state.done:
         say(f"GES resume: {run_dir} after round {state.round}")
-    own = executor is None and not state.done
+    own = executor is None and (not state.done or (config.final_train and not state.final))
     executor = ProcessPoolExecutor(max_workers=os.cpu_count()) if own else executor
     start = time.time()
     try:
@@ -375,6 +391,10 @@ def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
             adapt = "".join(f"  {e['kind']} {e['id']}->{e.get('into', e.get('child'))}" for e in h.get("events", []))
             say(f"round {h['round']:2d}/{config.max_rounds}  coverage {h['coverage']:6.1%}  wins {h['wins']}  "
                 + (f"K {len(h['mu'])}{adapt}  " if config.adaptive else "") + f"elapsed {time.time() - start:7.1f}s")
+        if config.final_train and not state.final:
+            state = train_final(space, train_fn, run_dir, seed, executor, state)
+            _save_state(run_dir, space, config, seed, state)
+            say(f"final training on the final territories  elapsed {time.time() - start:7.1f}s")
     finally:
         if own:
             executor.shutdown()
@@ -464,6 +484,7 @@ def _check_config(c: GESConfig) -> None:
     need("init", c.init in INIT_METHODS, f"one of {INIT_METHODS}")
     need("router", c.router in ROUTERS, f"one of {ROUTERS}")
     need("adaptive", isinstance(c.adaptive, (bool, np.bool_)), "True or False")
+    need("final_train", isinstance(c.final_train, (bool, np.bool_)), "True or False")
     for name in ("K_min", "K_max", "n_check"):
         integer(name, 1)
     need("K_max", c.K_max >= c.K_min, f"an integer >= K_min={c.K_min}")
@@ -492,13 +513,10 @@ def _atomic_json(path: str, obj) -> None:
 
 def history_entry(space, state: GESState, cov: float, probes, winner, trained: list, events: list | None,
                   scores=None) -> dict:
-    """One history record. "round" counts completed rounds (0 = initialisation); entry r holds the territories
-    after refit r, the probes of training round r-1 with their winners (indices into `trained`, the ids that
-    trained) and every specialist's score of every probe (`probe_scores`, one row per trained id: how close each
-    win was, ties included), and that round's checkpoints; adaptive K adds the ids and the round's merges and
-    splits."""
-    entry = {"round": state.round, "coverage": cov,
-             "mu_unit": state.mu.tolist(), "sigma_unit": state.sigma.tolist(),
+    """Entry r (completed rounds; 0 = initialisation): the territories after refit r, round r-1's probes, their
+    winners (indices into `trained`) and every trained specialist's score of each (`probe_scores`: ties too), and
+    the round's checkpoints; adaptive K adds the ids, merges and splits."""
+    entry = {"round": state.round, "coverage": cov, "mu_unit": state.mu.tolist(), "sigma_unit": state.sigma.tolist(),
              "mu": space.from_unit(state.mu).tolist(), "sigma": (state.sigma * (space.hi - space.lo)).tolist(),
              "wins": [int(w) for w in np.bincount(winner, minlength=len(trained))],
              "n_designs": [len(e) for e in state.eta],
@@ -520,7 +538,8 @@ def _state_doc(state: GESState) -> dict:
     adapt = {} if state.adapt is None else {"ids": list(state.ids), **state.adapt}
     if state.round == 0:
         return {**doc, "history": state.history, **adapt}
-    return {**doc, **adapt, "history": state.history, "task_seconds": state.task_seconds}
+    return {**doc, **adapt, "history": state.history, "task_seconds": state.task_seconds,
+            **({"final": True} if state.final else {})}
 
 
 def _state_of(doc: dict) -> GESState:
@@ -529,7 +548,7 @@ def _state_of(doc: dict) -> GESState:
     return GESState(doc["round"], mu, np.array(doc["sigma"], dtype=float),
                     [np.array(e, dtype=float).reshape(-1, mu.shape[1]) for e in doc["eta"]], list(doc["ckpt"]),
                     doc["done"], doc["history"], list(doc.get("ids", range(len(mu)))),
-                    adapt if "ids" in doc else None, doc.get("task_seconds", []))
+                    adapt if "ids" in doc else None, doc.get("task_seconds", []), doc.get("final", False))
 
 
 def _read_state(run_dir: str) -> tuple[dict, GESState]:
@@ -584,18 +603,6 @@ def load_result(run_dir: str) -> GESResult:
 # ---------------------------------------------------------------------------------------------------------
 # 7. Executors: the K specialists' train and probe tasks are independent [paper, Sec. V-D]
 # ---------------------------------------------------------------------------------------------------------
-class SerialExecutor(Executor):
-    """Runs each task inline at submit(): for debugging and tests. Same results as any other Executor."""
-
-    def submit(self, fn, /, *args, **kwargs):
-        fut = Future()
-        try:
-            fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # delivered through the future, like a pool would
-            fut.set_exception(exc)
-        return fut
-
-
 def _timed(fn: Callable, *args) -> tuple:
     """(fn(*args), seconds), timed where the task runs: the compute a task used, not how long it queued."""
     start = time.perf_counter()

@@ -19,8 +19,8 @@ Read top to bottom, the paper's experiments section in order:
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve (drawn by report/figures.py)
   4. the stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches, per-design BO
-  5. REPORT.md and results.json (the tables' Markdown in report/); 6. machinery (seeds, repair, hashed files,
-     the --rates job); 7. the command line (runkit.cli; watch and score: experiments/use.py)
+  5. REPORT.md and results.json (the tables' Markdown in report/); 6. machinery (a GES run read back, seeds,
+     repair, hashed files, the --rates job); 7. the command line (runkit.cli; watch and score: experiments/use.py)
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, test_scores.csv, figures/, and the work files
 policies/, ges/, tpe/, stages/). Every stage keeps its result and long ones checkpoint inside, so a rerun skips
 finished work and, all randomness deriving from --seed, redoes a damaged file's part with the same numbers
@@ -184,8 +184,11 @@ class ScoreSpecialist:
     trace: dict | None = None   # see score_policy (in-process callers only)
 
     def __call__(self, k, ckpt, designs):
-        return score_policy(load_ges_ckpt(ckpt, self.preset), self.space.full(designs), self.task, self.preset,
-                            self.workers, f"{self.label} specialist {k}" if self.label else "", self.probe, self.trace)
+        full, tie = self.space.full(designs), self.probe and self.preset.probe_tiebreak
+        trace = {} if tie and self.trace is None else self.trace
+        j = score_policy(load_ges_ckpt(ckpt, self.preset), full, self.task, self.preset, self.workers,
+                         f"{self.label} specialist {k}" if self.label else "", self.probe, trace)
+        return j + tiebreak(full, trace) if tie else j
 
 
 @dataclass
@@ -213,23 +216,6 @@ def ges_J(run_dir: str, task: str, space: ballu.DesignSpace, preset: Preset, wor
     for c in res.ckpt:   # each specialist read back once here: TPE would count a damaged one as failed trials
         load_ges_ckpt(c, preset)
     return ges.routed_evaluator(res, ScoreSpecialist(task, space, preset, workers, label, trace=trace))
-
-
-def ges_fix(run_dir: str) -> str:
-    """What to do about a damaged file of a GES run: its rounds cannot be redone alone."""
-    return (f"{FRESH}, or delete the folder {run_dir} and the stages/*.json of ges and every later stage to "
-            f"redo only that GES run (all other work files are reused)")
-
-
-def load_ges(run_dir: str) -> ges.GESResult:
-    return read_back(os.path.join(run_dir, ges.STATE_FILE), lambda p: ges.load_result(run_dir), "GES state",
-                     ges_fix(run_dir))
-
-
-def load_ges_ckpt(ckpt: str, preset: Preset):
-    """A GES specialist's policy (ckpt inside <run_dir>/ckpt/: its last round's), by the preset's policy_rule."""
-    return read_back(ppo.scored_path(ckpt, preset.policy_rule), ppo.load_policy, "ppo.py checkpoint",
-                     ges_fix(os.path.dirname(os.path.dirname(ckpt))))
 
 
 def ges_specialist(run_dir: str, theta, preset: Preset):
@@ -317,6 +303,10 @@ class Preset:
     # the task/space cells the run runs [paper: all four]; e.g. `--set cells=obstacle-d2` runs one cell alone (its
     # baseline-design policy, e2e policies, GES, tables; Table III, Fig. 7 and the cost only with their own cell)
     cells: tuple = CELLS
+    # [ours] schedule levers, off by default (docs/ges_schedule): one more GES round's training on the final
+    # territories (ges.GESConfig.final_train); probe ties, whole levels apart, broken by the episodes' mean final x
+    ges_final_train: bool = False
+    probe_tiebreak: bool = False
 
     def __post_init__(self):
         bad = [c for c in self.cells if c not in CELLS]
@@ -713,7 +703,8 @@ def ges_run(run: Run, task: str, sp: str, K: int, init: str, executor, stop: thr
         if K == "auto" else dict(K=K)
     config = ges.GESConfig(n_probe=p.ges_probes, probe_pool=p.ges_probe_pool,
                            n_init_designs=p.ges_init_designs, n_mc=p.ges_n_mc, max_rounds=p.ges_max_rounds,
-                           fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage, **adaptive)
+                           fps_pool=p.ges_fps_pool, init=init, target_coverage=p.ges_target_coverage,
+                           final_train=p.ges_final_train, **adaptive)
     os.makedirs(run_dir, exist_ok=True)
     times_path = os.path.join(run_dir, "round_seconds.json")
     times = redo_if_damaged(times_path, part="counting its round times from now on") or {}
@@ -767,6 +758,14 @@ def ges_runs(run: Run, specs: list, label: str) -> dict:
 
 
 # --- score sets of the test designs -------------------------------------------------------------------------
+def tiebreak(full, trace: dict) -> np.ndarray:
+    """Preset.probe_tiebreak [ours]: 1e-3 x each design's mean final pelvis x over its episodes (m, clipped to
+    +-10; a blown-up episode counts -10): < 0.011, below the least step between two levels' J (0.4 deg), so it
+    orders only probes the specialists tie on, by how far they went."""
+    xs = [[-10.0 if x is None else x for x in trace[d.tobytes()]] for d in np.asarray(full, float)]
+    return 1e-3 * np.clip([np.mean(x) for x in xs], -10, 10)
+
+
 def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = None) -> str:
     """Name of a score set; a GES score set is named by its GES run, so Table II, Table III (FPS + Lloyd) and
     Fig. 7 (K = K_d2) share the main obstacle D2 run's scores instead of scoring it three times."""
@@ -1003,9 +1002,26 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. Machinery: seeds, work files and their repair, the files the code hash covers and a Dask cluster gets, the
-#    job --rates times (runkit.plan)
+# 6. Machinery: a GES run's files read back, seeds, work files and their repair, the files the code hash covers
+#    and a Dask cluster gets, the job --rates times (runkit.plan)
 # ----------------------------------------------------------------------------------------------------------
+def ges_fix(run_dir: str) -> str:
+    """What to do about a damaged file of a GES run: its rounds cannot be redone alone."""
+    return (f"{FRESH}, or delete the folder {run_dir} and the stages/*.json of ges and every later stage to "
+            f"redo only that GES run (all other work files are reused)")
+
+
+def load_ges(run_dir: str) -> ges.GESResult:
+    return read_back(os.path.join(run_dir, ges.STATE_FILE), lambda p: ges.load_result(run_dir), "GES state",
+                     ges_fix(run_dir))
+
+
+def load_ges_ckpt(ckpt: str, preset: Preset):
+    """A GES specialist's policy (ckpt inside <run_dir>/ckpt/: its last round's), by the preset's policy_rule."""
+    return read_back(ppo.scored_path(ckpt, preset.policy_rule), ppo.load_policy, "ppo.py checkpoint",
+                     ges_fix(os.path.dirname(os.path.dirname(ckpt))))
+
+
 def derive_seed(seed: int, *names) -> int:
     """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
     results do not depend on the order in which things run."""

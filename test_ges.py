@@ -1820,6 +1820,37 @@ def test_ges_resume_equals_uninterrupted(synthetic_run, tmp_path):
         _run(tmp_path, land, config=ges.GESConfig(K=3, n_probe=50))
 
 
+def test_ges_final_train_trains_the_final_territories_once(synthetic_run, tmp_path):
+    """GESConfig.final_train: after the loop, each specialist trains once more, from its last checkpoint, on its
+    final territory; the loop's territories, probes and winners stay the run's. A crash in that last training
+    resumes it alone; without the option state.json has no trace of it."""
+    land, ref = _land(), synthetic_run
+    calls = []
+
+    def train(k, r, sampler, ckpt_in, ckpt_out):
+        calls.append((k, r, sampler.mu.copy(), sampler.sigma.copy(), ckpt_in))
+        return land.train(k, r, sampler, ckpt_in, ckpt_out)
+    cfg = ges.GESConfig(K=3, final_train=True)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        _run(tmp_path, land, train=_FailingTrainer(land.train, ref.rounds), config=cfg)
+    assert json.load(open(tmp_path / "state.json"))["round"] == ref.rounds
+    res = _run(tmp_path, land, train=train, config=cfg)
+    assert {r for _, r, *_ in calls} == {ref.rounds} and len(calls) == 3   # the final training alone
+    for k, r, mu, sigma, ckpt_in in calls:
+        np.testing.assert_array_equal(mu, ref.mu_unit[k])
+        np.testing.assert_array_equal(sigma, ref.sigma_unit[k])
+        assert os.path.basename(ckpt_in) == os.path.basename(ref.ckpt[k])
+    assert [os.path.basename(c) for c in res.ckpt] == [f"spec{k}_round{ref.rounds:02d}.ckpt" for k in range(3)]
+    h, h_ref = res.history["rounds"], ref.history["rounds"]
+    assert h[:-1] == h_ref[:-1] and h[-1]["final_train"] and h[-1]["ckpt"] == [os.path.join("ckpt", os.path.basename(c))
+                                                                                 for c in res.ckpt]
+    assert {k: v for k, v in h[-1].items() if k not in ("ckpt", "final_train")} == \
+        {k: v for k, v in h_ref[-1].items() if k != "ckpt"}
+    assert json.load(open(tmp_path / "state.json"))["final"] is True
+    assert "final" not in json.load(open(os.path.join(ref.run_dir, "state.json")))
+    assert _run(tmp_path, land, train=train, config=cfg).ckpt == res.ckpt and len(calls) == 3   # done: no retraining
+
+
 def test_ges_process_pool_equals_serial(synthetic_run, tmp_path):
     with ProcessPoolExecutor(2) as pool:
         par = _run(tmp_path, executor=pool)
@@ -2646,6 +2677,17 @@ def test_run_all_bad_input_exits_2_and_overwrites_nothing(smoke_run, tmp_path, c
     proc = subprocess.run([sys.executable, "run_all.py", "--only", "figures,nope", "--out", str(tmp_path / "z")],
                           cwd=os.path.dirname(os.path.abspath(run_all.__file__)), capture_output=True, text=True)
     assert proc.returncode == 2 and "unknown stage" in proc.stderr
+
+
+def test_run_all_probe_tiebreak_orders_only_ties():
+    """Preset.probe_tiebreak: J plus 1e-3 x the mean final x (clipped, a blow-up as -10 m) orders probes tied on
+    whole levels by how far the robot went, and never reorders two different levels (least step 0.39 deg)."""
+    full = np.array([[0.45, 0.45, 0.8, 0.01], [0.45, 0.45, 0.85, 0.02], [0.45, 0.45, 0.9, 0.03]])
+    trace = {full[0].tobytes(): [1.0, 2.0], full[1].tobytes(): [0.5, None], full[2].tobytes(): [50.0, 60.0]}
+    np.testing.assert_allclose(run_all.tiebreak(full, trace), [1.5e-3, -4.75e-3, 1e-2])
+    steps = np.diff(ballu.level_score("ramp", np.arange(ballu.MAX_LEVEL + 1)))
+    assert 2 * np.abs(run_all.tiebreak(full, trace)).max() < steps.min()
+    assert not run_all.OVERNIGHT.probe_tiebreak and not run_all.OVERNIGHT.ges_final_train   # levers: off
 
 
 def test_run_all_set_overrides_a_budget_kept_and_checked_by_name(tmp_path, capsys, monkeypatch):

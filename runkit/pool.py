@@ -9,7 +9,7 @@ import tempfile
 import threading
 import time
 import zipfile
-from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 
 from runkit.files import BadInput
 
@@ -86,8 +86,20 @@ def exit_with_parent(parent_pid: int, every: float = 1.0) -> None:
     threading.Thread(target=watch, daemon=True, name="exit_with_parent").start()
 
 
+class SerialExecutor(Executor):
+    """Runs each task inline at submit(): for debugging and tests. Same results as any other Executor."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # delivered through the future, like a pool would
+            fut.set_exception(exc)
+        return fut
+
+
 def executor(kind: str, workers: int, scheduler: str | None = None, files=(), stop_by: float | None = None,
-             inline=None) -> Executor:
+             inline=SerialExecutor) -> Executor:
     """The executor of a run's independent jobs: kind "dask", a Dask cluster's (dask_client: at `scheduler`, or a
     local one of `workers` processes; a cluster started by hand gets `files`); kind "process", a process pool
     (spawn: the parent holds torch threads; its workers end with the run: exit_with_parent), or `inline()` (an
