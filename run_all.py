@@ -319,6 +319,10 @@ class Preset:
         first = self.ges_round_steps if self.ges_first_round_steps is None else self.ges_first_round_steps
         return first + (rounds - 1) * self.ges_round_steps if rounds > 0 else 0
 
+    def ges_trained(self, rounds: int) -> int:
+        """Rounds a specialist trains in a GES run of `rounds` rounds: one more with ges_final_train."""
+        return rounds + int(self.ges_final_train)
+
     def env_config(self, cfg: ballu.BalluConfig) -> ballu.BalluConfig:
         """`cfg` with this preset's episode length: the one home of what a run's envs change from the defaults."""
         return cfg if self.episode_steps is None else replace(cfg, episode_steps=self.episode_steps)
@@ -480,7 +484,7 @@ def stage_matched(run: Run) -> dict:
     jobs = []
     for t, s in run.cells():
         warm = ppo.scored_path(policy_ckpt(run, f"mlp-{t}-{s}"), run.preset.policy_rule)
-        steps = ckpt_steps(warm) + run.preset.ges_steps(ges_res[run.main_ges(t, s)]["rounds"])
+        steps = ckpt_steps(warm) + run.preset.ges_steps(run.preset.ges_trained(ges_res[run.main_ges(t, s)]["rounds"]))
         jobs.append(MatchedJob(run.out, run.preset, run.seed, t, s, MATCHED, steps))
     prog = Progress("step-matched e2e MLPs", len(jobs), every=0, parallel=run.workers)
     with run.pool() as ex:

@@ -3861,3 +3861,27 @@ def test_args_old_forms_still_work_with_a_deprecation(capsys):
                                        "--K 2\n")
     assert args.legacy(["--demo=d"], old, "p") == ["demo", "--out", "d"]
     assert args.legacy(["--sweep"], old, "p") == ["sweep"] and args.legacy(["demo"], old, "p") == ["demo"]
+
+
+@pytest.mark.slow
+def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_path, capsys):
+    """experiments/ges_screen.py on a finished run: prepare scores the e2e MLP, the step-matched one and the run's
+    GES; a lever (--set) reruns GES from the run's e2e MLPs on the screen's cells, and its table row compares them
+    paired. The lever 'as run' reproduces the run's own GES scores; a lever renamed with other values is refused."""
+    from experiments import ges_screen
+    work = str(tmp_path / "w")
+    assert ges_screen.main(["prepare", smoke_run, "--state", smoke_run, "--ges-runs", smoke_run, "--out", work,
+                            "--cells", "obstacle-d2", "--workers", "1"]) == 0
+    assert ges_screen.main(["run", work, "--lever", "same", "--workers", "1"]) == 0
+    assert ges_screen.main(["run", work, "--lever", "final", "--set", "ges_final_train=true", "--workers", "1"]) == 0
+    key = "test-obstacle-d2-ges-obstacle-d2-K3-fps-lloyd"
+    assert read_json(os.path.join(work, "same", "scores", f"{key}.json"))["scores"] == \
+        read_json(os.path.join(smoke_run, "scores", f"{key}.json"))["scores"]
+    ckpt = read_json(os.path.join(work, "final", "ges", "obstacle-d2-K3-fps-lloyd", "state.json"))["ckpt"]
+    assert ckpt[0].endswith(f"round{run_all.SMOKE.ges_max_rounds:02d}.ckpt")   # the final training's
+    capsys.readouterr()
+    assert ges_screen.main(["run", work, "--lever", "final", "--set", "probe_tiebreak=true"]) == 2
+    assert "name another lever" in capsys.readouterr().err
+    assert ges_screen.main(["table", work]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 3 |")]
+    assert len(rows) == 2 and "ges_final_train=true" in rows[1] and rows[1].count("p=") == 3

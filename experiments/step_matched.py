@@ -24,6 +24,7 @@ import csv
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -45,10 +46,14 @@ def git_show(spec: str) -> bytes:
 def prepare(run_folder: str, state: str, out: str) -> None:
     """The e2e MLPs with optimiser state from `state` (commit:folder or commit:file.tar) and the run's manifest and
     GES stage from its results.json, into `out`."""
-    commit, path = state.split(":", 1)
+    commit, path = state.split(":", 1) if ":" in state else (None, state)   # a plain folder: a run's own
     os.makedirs(out, exist_ok=True)
     wanted = [f"mlp-{t}-{s}" for t in run_all.TASKS for s in run_all.SPACES]
-    if path.endswith(".tar"):
+    if commit is None:
+        for name in wanted:
+            shutil.copytree(os.path.join(path, "policies", name), os.path.join(out, "policies", name),
+                            dirs_exist_ok=True)
+    elif path.endswith(".tar"):
         with tarfile.open(fileobj=io.BytesIO(git_show(f"{commit}:{path}"))) as tar:
             for m in tar.getmembers():
                 parts = m.name.split("/")

@@ -73,8 +73,10 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     peak_J = (p.peak_episodes or 0) * episode                                  # a TPE peak scored once more
     probe_J = len(p.probe_level_steps) * episode if p.probe_level_steps else J
 
+    spec = p.ges_steps(p.ges_max_rounds + int(getattr(p, "ges_final_train", False)))   # a specialist's, at the cap
+
     def ges(Ks):   # (PPO steps, 0, probe steps) of GES runs with these K, each at its round cap
-        return np.array([sum(K * p.ges_steps(p.ges_max_rounds) for K in Ks), 0,
+        return np.array([sum(K * spec for K in Ks), 0,
                          sum(K * p.ges_probes * probe_J for K in Ks) * p.ges_max_rounds])
 
     def idle(n):   # jobs' worth of core time n equal jobs leave idle, run `workers` at a time; a last, partial
@@ -97,7 +99,7 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
     work = {"baselines": np.array([(tasks + layout.e2e * cells) * p.ppo_steps, 0, 0]),
             "ges": ges(main_K),
             # the step-matched e2e MLP: each cell's e2e MLP trained a specialist's steps on (round cap), then scored
-            "matched": np.array([cells * p.ges_steps(p.ges_max_rounds), cells * p.n_test * J, 0]),
+            "matched": np.array([cells * spec, cells * p.n_test * J, 0]),
             "table2": np.array([0, (tasks + cells * layout.methods * p.n_test + cells * searched * p.tpe_trials) * J
                                 + cells * searched * peak_J, 0]),
             "table3": ges([p.K_d2] * other_inits) + [0, other_inits * p.n_test * J, 0],
@@ -105,7 +107,6 @@ def plan(preset, layout: Layout, workers: int = 2, train_rate: float = TRAIN_RAT
             "cost": np.array([p.cost_trials * p.ppo_steps, p.cost_trials * J, 0]) * cost_on, "figures": np.zeros(3)}
     # control steps the idle cores could have done: a stage's GES runs side by side, their specialists in waves
     # of `workers` each round; its score sets side by side
-    spec = p.ges_steps(p.ges_max_rounds)
     ges_idle = lambda Ks: np.array([idle(sum(Ks)) * spec, 0, 0])   # noqa: E731
     waste = {"ges": ges_idle(main_K),
              "table3": ges_idle([p.K_d2] * other_inits) + [0, idle(other_inits) * p.n_test * J, 0],

@@ -1,0 +1,156 @@
+"""Which GES schedule makes specialists beat the step-matched e2e MLP? A screen of schedule levers on a committed run.
+
+    python -m experiments.ges_screen prepare docs/overnight/seed0 --state 9eb76ac:docs/overnight/seed0/state \
+        --ges-runs ~/runs/terr/seed0 --out ~/runs/screen/seed0
+    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true
+    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever steps2m --set ges_first_round_steps=1400000
+    python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
+
+One fixed protocol for every lever [ours, issue 95]: the run's own e2e MLPs (with optimiser state, from its resume
+state in git history) as GES's warm start, the run's preset with the lever's `--set` overrides (run_all's
+vocabulary), obstacle D2 and D3 (`--cells`), the run's seed, and the run's own test designs, paired. `prepare`
+scores the e2e MLP, the step-matched e2e MLP (committed in the run's policies/) and, with `--ges-runs` (a folder
+of experiments.ges_territories extract), the run's own GES on this machine: J is bit for bit on one CPU model
+only (docs/speed), so every number a table compares comes from the machine that ran the screen. `run` is
+resumable (rerun to go on); `table` prints each lever's GES against the three, per cell. Results:
+docs/ges_schedule/.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, HERE)
+
+import run_all  # noqa: E402
+from experiments import args as cli_args  # noqa: E402
+from experiments.step_matched import fmt, prepare as copy_warm_starts  # noqa: E402
+from runkit.cli import override  # noqa: E402
+from runkit.files import read_json, write_json  # noqa: E402
+from runkit.stats import paired_comparison  # noqa: E402
+
+CELLS = ("obstacle-d2", "obstacle-d3")   # the issue's screen cells: the obstacle, where GES's lead is open
+BASES = ("mlp", run_all.MATCHED, "ges")   # what every lever is compared with, scored at prepare
+
+
+def base_run(work: str, workers: int = 1, preset=None) -> run_all.Run:
+    man = read_json(os.path.join(work, "manifest.json"))
+    return run_all.Run(work, preset or run_all.PRESETS[man["preset"]], int(man["seed"]), workers)
+
+
+def prepare(run_folder: str, state: str, out: str, ges_runs: str | None, cells: tuple, workers: int) -> None:
+    """The run's e2e MLPs with optimiser state (experiments.step_matched.prepare), its committed step-matched
+    policies, and the comparison's score sets on this machine: e2e MLP, step-matched, the run's own GES."""
+    copy_warm_starts(run_folder, state, out)
+    os.remove(os.path.join(out, "stages", "ges.json"))   # each lever runs its own GES stage
+    for c in cells:
+        src = os.path.join(run_folder, "policies", f"{run_all.MATCHED}-{c}", "policy_best.pt")
+        dst = os.path.join(out, "policies", f"{run_all.MATCHED}-{c}", "policy_best.pt")
+        os.makedirs(os.path.dirname(dst), exist_ok=True)
+        shutil.copy(src, dst)
+    if ges_runs:
+        os.symlink(os.path.abspath(os.path.join(ges_runs, "ges")), os.path.join(out, "ges"))
+    r = base_run(out, workers)
+    jobs = [run_all.ScoreSet(out, r.preset, r.seed, *c.split("-"), m, r.main_ges(*c.split("-")) if m == "ges" else None)
+            for c in cells for m in BASES if m != "ges" or ges_runs]
+    run_all.score_sets(r, jobs, "the screen's comparison, on this machine")
+    write_json(os.path.join(out, "screen.json"), {"cells": list(cells), "levers": {}})
+
+
+def run(work: str, lever: str, sets: list, workers: int) -> None:
+    """One lever: GES on the screen's cells with the run's preset and `sets` overrides, warm-started from the
+    run's e2e MLPs, then its test scores. In <work>/<lever>/, resumable."""
+    screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
+    preset = lever_preset(base.preset, sets, screen["cells"])
+    old = screen["levers"].get(lever)
+    if old is not None and old != list(sets):
+        raise cli_args.BadArg(f"lever {lever!r} ran with --set {old}, not {sets}: name another lever")
+    screen["levers"][lever] = list(sets)
+    write_json(os.path.join(work, "screen.json"), screen)
+    folder = os.path.join(work, lever)
+    os.makedirs(folder, exist_ok=True)
+    if not os.path.exists(os.path.join(folder, "policies")):
+        os.symlink(os.path.abspath(os.path.join(work, "policies")), os.path.join(folder, "policies"))
+    shutil.copy(os.path.join(work, "manifest.json"), os.path.join(folder, "manifest.json"))
+    r = replace(base, out=folder, preset=preset, workers=workers)
+    run_all.run_stage(r, "ges")
+    jobs = [run_all.ScoreSet(folder, preset, r.seed, t, s, "ges", r.main_ges(t, s)) for t, s in r.cells()]
+    run_all.score_sets(r, jobs, f"lever {lever}: GES on the test designs")
+
+
+def lever_preset(preset, sets: list, cells):
+    """The run's preset with a lever's --set overrides (runkit.cli.override, checked there) on the screen's cells."""
+    return replace(override(preset, sets)[0], cells=tuple(cells))
+
+
+def scores(folder: str, key: str) -> np.ndarray | None:
+    path = os.path.join(folder, "scores", f"{key}.json")
+    return np.array(read_json(path)["scores"]) if os.path.exists(path) else None
+
+
+def table(works: list) -> str:
+    """Per seed, lever and cell: GES's mean J and its paired difference to the e2e MLP, the step-matched e2e MLP
+    and the run's own GES (as scored at prepare), with each lever's steps per specialist at its round cap."""
+    lines = ["| seed | lever | cell | steps per specialist | GES | GES - e2e MLP | GES - step-matched | "
+             "GES - run's GES |", "|---" * 8 + "|"]
+    for work in works:
+        screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
+        for lever, sets in screen["levers"].items():
+            preset = lever_preset(base.preset, sets, screen["cells"])
+            r = replace(base, out=os.path.join(work, lever), preset=preset)
+            for t, s in r.cells():
+                g = scores(r.out, run_all.score_key(r, t, s, "ges"))
+                if g is None:
+                    continue
+                others = [scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
+                cols = [fmt(paired_comparison(g, o)) if o is not None else "-" for o in others]
+                lines.append(f"| {base.seed} | {lever} ({', '.join(sets) or 'as run'}) "
+                             f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(preset.ges_max_rounds)):,} | {g.mean():.1f} | "
+                             + " | ".join(cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = cli_args.program("python -m experiments.ges_screen", __doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = cli_args.command(sub, "prepare", "a work folder from a committed run: warm starts, comparison scores", __doc__)
+    p.add_argument("run_folder")
+    p.add_argument("--state", required=True, help="COMMIT:PATH of the run's resume state (folder or .tar)")
+    p.add_argument("--ges-runs", help="a folder holding the run's GES runs (experiments.ges_territories extract)")
+    p.add_argument("--cells", default=",".join(CELLS), help=f"cells to screen (default {','.join(CELLS)})")
+    p.add_argument("--out", required=True)
+    cli_args.add_workers(p)
+    p = cli_args.command(sub, "run", "one lever: GES with --set overrides on the screen's cells, then J", __doc__)
+    p.add_argument("work")
+    p.add_argument("--lever", required=True, help="the lever's name (its folder)")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="run_all's preset overrides")
+    cli_args.add_workers(p)
+    p = cli_args.command(sub, "table", "every lever against the e2e MLP, step-matched and the run's GES", __doc__)
+    p.add_argument("works", nargs="+")
+    p.add_argument("--out", help="also write the table to this Markdown file")
+    a = cli_args.parse(ap, argv)
+    try:
+        if a.cmd == "prepare":
+            prepare(a.run_folder, a.state, os.path.expanduser(a.out), a.ges_runs and os.path.expanduser(a.ges_runs),
+                    tuple(c for c in a.cells.split(",") if c), a.workers)
+        elif a.cmd == "run":
+            run(os.path.expanduser(a.work), a.lever, a.set, a.workers)
+        else:
+            text = table([os.path.expanduser(w) for w in a.works])
+            if a.out:
+                open(a.out, "w").write(text)
+            sys.stdout.write(text)
+    except cli_args.BadInput as e:
+        print(f"ges_screen: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
