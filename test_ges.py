@@ -3795,7 +3795,8 @@ COMMAND_LINES = [   # (the module holding a file's main, its name, argv); [] = r
     ("experiments.ppo_ballu", "main", ["strip", "--help"]),
     ("experiments.ppo_diagnose", "main", ["--help"]), ("experiments.ppo_protocol", "main", ["--help"]),
     ("experiments.probe_agreement", "main", ["--help"]), ("experiments.same_results", "main", ["--help"]),
-    ("run_all", "main", ["--help"]),
+    ("run_all", "main", ["--help"]), ("experiments.step_matched", "main", ["--help"]),
+    ("experiments.ges_territories", "main", ["--help"]), ("experiments.ges_screen", "main", ["--help"]),
 ]
 
 

@@ -16,7 +16,6 @@ e2e MLP (experiments/step_matched). Every (policy, design set) J is one cached j
 """
 from __future__ import annotations
 
-import argparse
 import glob
 import io
 import json
@@ -133,8 +132,8 @@ def table(terrs: list) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    from experiments import args as cli_args
+    ap = cli_args.program("python -m experiments.ges_territories", __doc__, __doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("extract")
     p.add_argument("state", help="COMMIT:PATH of a resume state archive (.tar or .tar.gz)")

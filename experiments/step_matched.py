@@ -19,7 +19,6 @@ three on one machine's numbers. Results: docs/ges_schedule/.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
@@ -166,8 +165,8 @@ def table(pairs: list) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    from experiments import args as cli_args
+    ap = cli_args.program("python -m experiments.step_matched", __doc__, __doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("prepare")
     p.add_argument("run_folder")
