@@ -6,8 +6,8 @@
 
 The camera follows the pelvis from the side, as report/strip.py's motion strip (paper Fig. 1) does, from farther
 away (CAMERA_Y). The episode is the one ballu.score plays at that level (same env settings, reset seed 0), so a
-film's final x is that episode's final x (test_use_draft.py). The command line: runkit/use.py
-(`python -m runkit.use watch ...`).
+film's final x is that episode's final x (test_use_watch_plays_the_episode_J_plays). The command line:
+experiments/use.py (`python run_all.py watch ...`).
 
     from report.animate import film, panel_frames, save_animation
     f = film(policy, "obstacle", design_full, level=28, cfg=cfg)
