@@ -3880,9 +3880,12 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
         read_json(os.path.join(smoke_run, "scores", f"{key}.json"))["scores"]
     ckpt = read_json(os.path.join(work, "final", "ges", "obstacle-d2-K3-fps-lloyd", "state.json"))["ckpt"]
     assert ckpt[0].endswith(f"round{run_all.SMOKE.ges_max_rounds:02d}.ckpt")   # the final training's
+    picked = ges_screen.pick(work, "same", n=2)   # each specialist's policy chosen across its rounds
+    assert len(picked["obstacle-d2"]) == 3 and all(0 <= b < run_all.SMOKE.ges_max_rounds for b in picked["obstacle-d2"])
     capsys.readouterr()
     assert ges_screen.main(["run", work, "--lever", "final", "--set", "probe_tiebreak=true"]) == 2
     assert "name another lever" in capsys.readouterr().err
     assert ges_screen.main(["table", work]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 3 |")]
-    assert len(rows) == 2 and "ges_final_train=true" in rows[1] and rows[1].count("p=") == 3
+    assert len(rows) == 3 and "same + pick" in rows[1] and "ges_final_train=true" in rows[2]
+    assert all(r.count("p=") == 3 for r in rows)

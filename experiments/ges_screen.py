@@ -4,6 +4,7 @@
         --ges-runs ~/runs/terr/seed0 --out ~/runs/screen/seed0
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever steps2m --set ges_first_round_steps=1400000
+    python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final
     python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
 
 One fixed protocol for every lever [ours, issue 95]: the run's own e2e MLPs (with optimiser state, from its resume
@@ -28,6 +29,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, HERE)
 
+import ges  # noqa: E402
 import run_all  # noqa: E402
 from experiments import args as cli_args  # noqa: E402
 from experiments.step_matched import fmt, prepare as copy_warm_starts  # noqa: E402
@@ -84,6 +86,35 @@ def run(work: str, lever: str, sets: list, workers: int) -> None:
     run_all.score_sets(r, jobs, f"lever {lever}: GES on the test designs")
 
 
+def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
+    """The lever "pick" [ours, item 3], after a lever's GES: each specialist's scored policy chosen across its
+    rounds by J on `n` designs of its final territory (a later round on a grown territory may serve its designs
+    worse: docs/ges_schedule, territories), then the test designs routed (eq. 10) and scored with the chosen
+    policies: score set test-<cell>-ges-picked. Returns cell -> each specialist's chosen round."""
+    screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
+    r = replace(base, out=os.path.join(work, lever), preset=lever_preset(base.preset, screen["levers"][lever],
+                                                                         screen["cells"]), workers=workers)
+    chosen = {}
+    for t, s in r.cells():
+        res, space = run_all.load_ges(r.path("ges", r.main_ges(t, s))), run_all.space_of(r.preset, t, s)
+        J, best, ckpt = run_all.ScoreSpecialist(t, space, r.preset, workers), [], []
+        for k, i in enumerate(res.ids):   # every round's checkpoint of specialist i (a final training's too)
+            rounds = [c for c in (os.path.join(res.run_dir, ges.CKPT_DIR, f"spec{i}_round{x:02d}.ckpt")
+                                  for x in range(res.rounds + 1)) if os.path.exists(c)]
+            sampler = ges.GaussianSampler(res.mu_unit[k], res.sigma_unit[k], res.space)
+            designs = sampler(np.random.default_rng(run_all.derive_seed(r.seed, "pick", t, s, k)), n)
+            best.append(int(np.argmax([np.mean(J(k, c, designs)) for c in rounds])))
+            ckpt.append(rounds[best[-1]])
+        picked = replace(res, ckpt=ckpt)
+        theta = r.test_designs(t, s)
+        key = f"{run_all.score_key(r, t, s, 'ges')}-picked"
+        run_all.cached_scores(r, key, lambda tr: ges.routed_evaluator(picked, run_all.ScoreSpecialist(
+            t, space, r.preset, workers, trace=tr))(theta), space.full(theta))
+        chosen[f"{t}-{s}"] = best
+    write_json(os.path.join(r.out, "picked.json"), chosen)
+    return chosen
+
+
 def lever_preset(preset, sets: list, cells):
     """The run's preset with a lever's --set overrides (runkit.cli.override, checked there) on the screen's cells."""
     return replace(override(preset, sets)[0], cells=tuple(cells))
@@ -105,14 +136,15 @@ def table(works: list) -> str:
             preset = lever_preset(base.preset, sets, screen["cells"])
             r = replace(base, out=os.path.join(work, lever), preset=preset)
             for t, s in r.cells():
-                g = scores(r.out, run_all.score_key(r, t, s, "ges"))
-                if g is None:
-                    continue
-                others = [scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
-                cols = [fmt(paired_comparison(g, o)) if o is not None else "-" for o in others]
-                lines.append(f"| {base.seed} | {lever} ({', '.join(sets) or 'as run'}) "
-                             f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(preset.ges_max_rounds)):,} | {g.mean():.1f} | "
-                             + " | ".join(cols) + " |")
+                for suffix in ("", "-picked"):   # the lever, and the lever with each policy picked (pick)
+                    g = scores(r.out, run_all.score_key(r, t, s, "ges") + suffix)
+                    if g is None:
+                        continue
+                    others = [scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
+                    cols = [fmt(paired_comparison(g, o)) if o is not None else "-" for o in others]
+                    lines.append(f"| {base.seed} | {lever}{' + pick' if suffix else ''} ({', '.join(sets) or 'as run'}) "
+                                 f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(preset.ges_max_rounds)):,} "
+                                 f"| {g.mean():.1f} | " + " | ".join(cols) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -131,6 +163,11 @@ def main(argv=None) -> int:
     p.add_argument("--lever", required=True, help="the lever's name (its folder)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="run_all's preset overrides")
     cli_args.add_workers(p)
+    p = cli_args.command(sub, "pick", "after a lever: each specialist's policy picked across rounds, then J", __doc__)
+    p.add_argument("work")
+    p.add_argument("--lever", required=True)
+    p.add_argument("--designs", type=cli_args.positive, default=12, help="designs of each final territory (12)")
+    cli_args.add_workers(p)
     p = cli_args.command(sub, "table", "every lever against the e2e MLP, step-matched and the run's GES", __doc__)
     p.add_argument("works", nargs="+")
     p.add_argument("--out", help="also write the table to this Markdown file")
@@ -141,6 +178,8 @@ def main(argv=None) -> int:
                     tuple(c for c in a.cells.split(",") if c), a.workers)
         elif a.cmd == "run":
             run(os.path.expanduser(a.work), a.lever, a.set, a.workers)
+        elif a.cmd == "pick":
+            print(pick(os.path.expanduser(a.work), a.lever, a.designs, a.workers))
         else:
             text = table([os.path.expanduser(w) for w in a.works])
             if a.out:
