@@ -5,8 +5,8 @@
     python run_all.py --plan | --rates | watch ... | score ...   # hours on this machine; use what a run trained
 
 Read top to bottom, the paper's experiments section in order:
-  1. the co-design of BALLU (paper Sec. IV): tasks, spaces, methods; a PPO policy on a design sampler; GES's train
-     and score callables (ges.py's contract); J(theta) of every method, GES's through the router (eq. 10)
+  1. the co-design of BALLU (paper Sec. IV): tasks, spaces, methods. How a policy is trained and scored, GES's
+     train and score callables (ges.py's contract) and J(theta) of every method (eq. 10): codesign/policies.py
   2. presets: every budget of a run in one dataclass
   3. stages (each a function, each name usable with --only), in the order a run runs them:
        table1     the design space and the baseline design                       (paper Table I)
@@ -18,9 +18,9 @@ Read top to bottom, the paper's experiments section in order:
        ksens      GES mean score for K = 1..6                                       (Fig. 7)
        cost       GES co-design vs per-design BO compute                            (Sec. V-D, 37 %)
        figures    Figs. 1, 3-8 and every learning curve (drawn by report/figures.py)
-  4. the stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches, per-design BO
-  5. REPORT.md and results.json (the tables' Markdown in report/); 6. machinery (a GES run read back, seeds,
-     repair, hashed files, the --rates job); 7. the command line (runkit.cli; watch and score: experiments/use.py)
+  4. the stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches
+  5. REPORT.md and results.json (the tables' Markdown in report/); 6. machinery (repair, hashed files);
+  7. the command line (runkit.cli; watch and score: experiments/use.py)
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, test_scores.csv, figures/, and the work files
 policies/, ges/, tpe/, stages/). Every stage keeps its result and long ones checkpoint inside, so a rerun skips
 finished work and, all randomness deriving from --seed, redoes a damaged file's part with the same numbers
@@ -32,12 +32,10 @@ from __future__ import annotations
 import csv
 import functools
 import glob
-import hashlib
 import os
 import sys
 import threading
 import time
-import zlib
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -46,6 +44,9 @@ import ballu
 import ges
 import ppo
 import tpe
+from codesign.policies import (PerDesignBO, ScoreSpecialist, TrainSpecialist, ckpt_steps, derive_seed, ges_J, ges_fix,
+                               ges_specialist, load_ges, load_ges_ckpt, load_policy, method_J, policy_ckpt, rate_job,
+                               score_policy, space_of, train_policy)
 from report.figures import (distinct_designs, fig_curves, fig_distributions, fig_experts, fig_ksens, fig_sensitivity,
                             fig_toes, ges_logs, level_of, plot_territories, specialist_gaits)
 from report.strip import motion_strip
@@ -54,20 +55,20 @@ from report.tables import (report_claims, report_cost, report_figures, report_ge
 from runkit import cli
 from runkit.cli import Experiment, calibration, kill_hook, stage_result
 from runkit.clock import stage_times
-from runkit.files import FRESH, READ_ERRORS, read_back, read_json, redo_if_damaged, write_json
+from runkit.files import read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import git_commit
-from runkit.logs import train_seconds, training_rate, trim_log
-from runkit.plan import Layout, job_rates, plan_seconds
+from runkit.logs import train_seconds, training_rate
+from runkit.plan import Layout, plan_seconds
 from runkit.pool import executor, side_by_side
-from runkit.progress import Progress, Throttled, eta_s, round_eta, say
+from runkit.progress import Progress, eta_s, round_eta, say
 from runkit.stats import wins
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS_FORMAT = 2   # bump when what a stage computes or stores changes: old result folders are then refused
 
 # ----------------------------------------------------------------------------------------------------------
-# 1. The co-design of BALLU (paper Sec. IV): tasks, spaces, methods; training a policy; GES's train and score
-#    callables; J(theta) of each method, GES's through the density router (eq. 10)
+# 1. The co-design of BALLU (paper Sec. IV): tasks, spaces, methods. Training and scoring a policy, GES's train and
+#    score callables, J(theta) of each method (GES's through the density router, eq. 10): codesign/policies.py
 # ----------------------------------------------------------------------------------------------------------
 TASKS = ("obstacle", "ramp")
 SPACES = ("d2", "d3")
@@ -76,168 +77,6 @@ METHODS = ("baseline", "mlp", "moe", "ges")          # "baseline" = the baseline
 E2E = ("mlp", "moe")                                  # the end-to-end policies of a cell (paper Sec. V-A)
 SEARCHED = E2E + ("ges",)                             # the methods a TPE design search runs with (Sec. V-B)
 CELLS = tuple(f"{t}-{s}" for t in TASKS for s in SPACES)   # a run's cells: each task in each space (Table II's rows)
-
-
-def space_of(preset: Preset, task: str, sp: str) -> ballu.DesignSpace:
-    """D2 = (GCR, SPCF) with l_f = l_t = 0.45; D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B)."""
-    return (ballu.d2 if sp == "d2" else ballu.d3)(task, preset.ranges)
-
-
-def ppo_config(preset: Preset) -> ppo.PPOConfig:
-    return ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout,
-                         init_action_mean=preset.ppo_init_action_mean)
-
-
-def start_levels(task: str, preset: Preset):
-    """A fresh training run's curriculum start (a warm start keeps its checkpoint's levels): Preset.ppo_start."""
-    return ballu.named_start_levels(preset.ppo_start, task, preset.score_start_level)
-
-
-def train_policy(ckpt: str, kind: str, task: str, sampler, steps: int, preset: Preset, seed: int, label: str = "",
-                 init_ckpt: str | None = None, log: str | None = None) -> str:
-    """Train one PPO policy into `ckpt` to `steps` control steps, in-process on one core, its learning curve in
-    `log` (default: log.csv beside it), warm-started from `init_ckpt` if given; `label` prefixes its progress
-    lines ("": silent). The one home of a training job's skip / resume / restart: a checkpoint at its steps is
-    kept (done in an earlier attempt); one killed mid-way goes on from its last checkpoint, its lanes' episodes
-    replayed, so it ends bit-identical with an uninterrupted run (its log trimmed to the checkpoint); one that
-    cannot go on exactly (damaged: moved aside by redo_if_damaged; or without lanes' state: a finished shorter
-    run's, an older code's) is deleted with its best policy and log, and the job trains from scratch."""
-    os.makedirs(os.path.dirname(ckpt) or ".", exist_ok=True)
-    log = log or os.path.join(os.path.dirname(ckpt), "log.csv")
-    own = redo_if_damaged(ckpt, ppo.load_checkpoint, "ppo.py checkpoint", f"retraining {label or ckpt}")
-    if own and own["steps"] >= steps:
-        return ckpt
-    if own and "run" in own:
-        trim_log(log, own["steps"])
-    else:
-        for f in (ckpt, ppo.best_path(ckpt), log):
-            if os.path.exists(f):
-                os.remove(f)
-    cfg = ppo_config(preset)
-    env = ballu.make_env(cfg.num_envs, 1, preset.env_config(ballu.BalluConfig(task=task)))
-    try:
-        ppo.train(kind, env, sampler, steps, ckpt, cfg, init_ckpt=init_ckpt, seed=seed,
-                  start_level=start_levels(task, preset), log_csv=log, progress=Throttled(label) if label else None)
-    finally:
-        env.close()
-    return ckpt
-
-
-@dataclass
-class TrainSpecialist:
-    """GES train_fn (ges.py contract): PPO on designs from the specialist's Gaussian, one process each.
-
-    Round r warm-starts from the specialist's round r-1 checkpoint (policy, optimiser, normaliser, curriculum
-    and step count carry over) and trains to Preset.ges_steps(r + 1) control steps at this trainer's round sizes,
-    on top of the warm-start policy's steps. A repeated (interrupted) round skips, resumes or retrains each
-    specialist as train_policy does, so the round is identical to an uninterrupted one."""
-    task: str
-    space: ballu.DesignSpace
-    round_steps: int
-    preset: Preset
-    warm_ckpt: str = ""   # Preset.ges_warm_start: round 0 starts from this policy (the cell's e2e MLP)
-    first_round_steps: int | None = None   # round 0's steps (None: round_steps); Preset.ges_first_round_steps
-    label: str = ""   # progress lines' prefix (the GES run's name); "" trains silently
-
-    def __call__(self, k, round, sampler, ckpt_in, ckpt_out):
-        base = read_back(self.warm_ckpt, ckpt_steps, "ppo.py checkpoint") if self.warm_ckpt else 0
-        sizes = replace(self.preset, ges_round_steps=self.round_steps, ges_first_round_steps=self.first_round_steps)
-        train_policy(ckpt_out, "mlp", self.task, ballu.InSpace(self.space, sampler), base + sizes.ges_steps(round + 1),
-                     self.preset, sampler.seed, f"{self.label} specialist {k} round {round}" if self.label else "",
-                     ckpt_in or self.warm_ckpt or None, ckpt_out + ".csv")
-
-
-def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, label: str = "",
-                 probe: bool = False, trace: dict | None = None, stats: dict | None = None) -> np.ndarray:
-    """J on a batch of full designs, spread over the shared worker pool (results do not depend on the worker
-    count or on the call's other designs: ballu.score gives each design a PyBullet world of its own, and learned
-    policies run row by row).
-
-    The one home of how a run scores: the preset's episodes from its start level (the task's, or smoke's
-    `score_start_level`); probe=True: GES's probe score, the preset's `probe_level_steps` schedule if it has
-    one (tables and test designs keep the paper's J). `trace` (a dict) receives each design's per-episode
-    final pelvis x (None for a blown-up episode) under its full design's bytes: score sets store trajectories,
-    not only levels, so runs that should be equal are compared on more than a few coarse levels."""
-    steps = preset.probe_level_steps if probe else None
-    j, x = ballu.score(policy, designs_full, task, episodes=None if steps else preset.score_episodes,
-                       start_level=preset.score_start_level, level_steps=steps,
-                       cfg=preset.env_config(ballu.policy_config(policy, task)),
-                       workers=max(1, min(workers, len(designs_full))), progress=Throttled(label) if label else None,
-                       final_x=True, stats=stats)
-    if trace is not None:
-        trace.update({np.asarray(d, float).tobytes(): [float(v) if np.isfinite(v) else None for v in row]
-                      for d, row in zip(designs_full, x)})
-    return j
-
-
-@dataclass
-class ScoreSpecialist:
-    """GES score_fn (ges.py contract): J of specialist k's deterministic policy on each design (one lane each).
-    GES's probes (probe=True) may use the preset's cheaper schedule; the router's J (test designs, TPE) is the
-    paper's. Inside GES's rounds the specialists are scored side by side, one process each (workers=1)."""
-    task: str
-    space: ballu.DesignSpace
-    preset: Preset
-    workers: int = 1
-    label: str = ""
-    probe: bool = False
-    trace: dict | None = None   # see score_policy (in-process callers only)
-
-    def __call__(self, k, ckpt, designs):
-        full, tie = self.space.full(designs), self.probe and self.preset.probe_tiebreak
-        trace = {} if tie and self.trace is None else self.trace
-        j = score_policy(load_ges_ckpt(ckpt, self.preset), full, self.task, self.preset, self.workers,
-                         f"{self.label} specialist {k}" if self.label else "", self.probe, trace)
-        return j + tiebreak(full, trace) if tie else j
-
-
-@dataclass
-class PolicyJ:
-    """J(theta) of one policy for every design (an e2e MLP / MoE, or the baseline design's policy)."""
-    policy: object
-    space: ballu.DesignSpace
-    task: str
-    preset: Preset
-    workers: int = 1
-    label: str = ""
-    trace: dict | None = None   # see score_policy
-
-    def __call__(self, theta):
-        out = score_policy(self.policy, self.space.full(theta), self.task, self.preset, self.workers, self.label,
-                           trace=self.trace)
-        return float(out[0]) if np.ndim(theta) == 1 else out
-
-
-def ges_J(run_dir: str, task: str, space: ballu.DesignSpace, preset: Preset, workers: int = 1,
-          label: str = "", trace: dict | None = None) -> ges.RoutedEvaluator:
-    """J(theta) of GES (paper Sec. IV-C): the density router (eq. 10) hands each design to the specialist whose
-    Gaussian is densest there, and that specialist plays it (the paper's J, never the probe schedule)."""
-    res = load_ges(run_dir)
-    for c in res.ckpt:   # each specialist read back once here: TPE would count a damaged one as failed trials
-        load_ges_ckpt(c, preset)
-    return ges.routed_evaluator(res, ScoreSpecialist(task, space, preset, workers, label, trace=trace))
-
-
-def ges_specialist(run_dir: str, theta, preset: Preset):
-    """The policy of the specialist the router (eq. 10) picks for one design theta (the space's coordinates)."""
-    res = load_ges(run_dir)
-    return load_ges_ckpt(res.ckpt[int(res.route(theta)[0])], preset)
-
-
-def load_policy(run: Run, method: str, task: str, sp: str):
-    """The policy of a single-policy method ('baseline' = the baseline design's own policy, 'mlp', 'moe')."""
-    name = f"baseline-{task}" if method == "baseline" else f"{method}-{task}-{sp}"
-    return read_back(ppo.scored_path(policy_ckpt(run, name), run.preset.policy_rule),
-                     ppo.load_policy, "ppo.py checkpoint")
-
-
-def method_J(run: Run, method: str, task: str, sp: str, label: str = "", trace: dict | None = None):
-    """J(theta) of a method on designs of its task/space: (d,) -> float, (n, d) -> (n,)."""
-    space = space_of(run.preset, task, sp)
-    if method == "ges":
-        return ges_J(run.path("ges", run.main_ges(task, sp)), task, space, run.preset,
-                     run.workers, label, trace)
-    return PolicyJ(load_policy(run, method, task, sp), space, task, run.preset, run.workers, label, trace)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -669,13 +508,9 @@ STAGES = {"table1": (stage_table1, ()), "baselines": (stage_baselines, ()), "ges
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 4. The stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches, per-design BO
+# 4. The stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches
 # ----------------------------------------------------------------------------------------------------------
 # --- policies -----------------------------------------------------------------------------------------------
-def policy_ckpt(run: Run, name: str) -> str:
-    return run.path("policies", name, "policy.pt")
-
-
 def baseline_jobs(run: Run) -> list:
     """(name, kind, task, sampler): the baseline design's own policy per task, e2e MLP and MoE per task/space
     (trained with uniform design randomisation over the space, paper Sec. V-A)."""
@@ -762,14 +597,6 @@ def ges_runs(run: Run, specs: list, label: str) -> dict:
 
 
 # --- score sets of the test designs -------------------------------------------------------------------------
-def tiebreak(full, trace: dict) -> np.ndarray:
-    """Preset.probe_tiebreak [ours]: 1e-3 x each design's mean final pelvis x over its episodes (m, clipped to
-    +-10; a blown-up episode counts -10): < 0.011, below the least step between two levels' J (0.4 deg), so it
-    orders only probes the specialists tie on, by how far they went."""
-    xs = [[-10.0 if x is None else x for x in trace[d.tobytes()]] for d in np.asarray(full, float)]
-    return 1e-3 * np.clip([np.mean(x) for x in xs], -10, 10)
-
-
 def score_key(run: Run, task: str, sp: str, method: str, ges_run: str | None = None) -> str:
     """Name of a score set; a GES score set is named by its GES run, so Table II, Table III (FPS + Lloyd) and
     Fig. 7 (K = K_d2) share the main obstacle D2 run's scores instead of scoring it three times."""
@@ -936,45 +763,6 @@ def run_searches(run: Run, specs: list) -> dict:
     return out
 
 
-# --- per-design BO ------------------------------------------------------------------------------------------
-@dataclass
-class PerDesignBO:
-    """The cost baseline's objective: every TPE trial trains a fresh PPO policy on its one design with the
-    per-policy budget (ppo_steps), then scores it. The policy folder is named by the design, so a killed
-    trial resumes its own training. One process on one core per trial, as every training job of a run."""
-    run: Run
-    task: str
-    space: ballu.DesignSpace
-
-    def folder(self, theta) -> str:
-        return self.run.path("policies", "bo", self.name(theta))
-
-    @staticmethod
-    def name(theta) -> str:
-        return hashlib.sha1(np.asarray(theta, dtype=float).tobytes()).hexdigest()[:12]
-
-    def __call__(self, theta):
-        full, name, folder = self.space.full(theta), self.name(theta), self.folder(theta)
-        ckpt = train_policy(os.path.join(folder, "policy.pt"), "mlp", self.task, ballu.FixedDesign(full[0]),
-                            self.run.preset.ppo_steps, self.run.preset, derive_seed(self.run.seed, "bo", name),
-                            f"bo {name}")
-        t0 = time.time()
-        y = PolicyJ(ppo.load_policy(ppo.scored_path(ckpt, self.run.preset.policy_rule)), self.space, self.task,
-                    self.run.preset)(theta)
-        write_json(os.path.join(folder, "seconds.json"),
-                   {"train_s": train_seconds(os.path.join(folder, "log.csv")), "score_s": time.time() - t0})
-        return y
-
-    def trial_seconds(self, trial) -> float:
-        """One trial's cost: its training over every attempt plus its J. tpe times only the call that finished
-        the trial, which a resumed training makes too short; a trial without seconds.json keeps tpe's time."""
-        try:
-            sec = read_json(os.path.join(self.folder(trial.x), "seconds.json"))
-            return float(sec["train_s"] + sec["score_s"])
-        except (OSError, *READ_ERRORS):
-            return float(trial.seconds or 0.0)
-
-
 # ----------------------------------------------------------------------------------------------------------
 # 5. REPORT.md and results.json: our numbers beside the paper's
 # ----------------------------------------------------------------------------------------------------------
@@ -1006,37 +794,8 @@ def report(run: Run, manifest: dict) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 6. Machinery: a GES run's files read back, seeds, work files and their repair, the files the code hash covers
-#    and a Dask cluster gets, the job --rates times (runkit.plan)
+# 6. Machinery: work files and their repair, the files the code hash covers and a Dask cluster gets
 # ----------------------------------------------------------------------------------------------------------
-def ges_fix(run_dir: str) -> str:
-    """What to do about a damaged file of a GES run: its rounds cannot be redone alone."""
-    return (f"{FRESH}, or delete the folder {run_dir} and the stages/*.json of ges and every later stage to "
-            f"redo only that GES run (all other work files are reused)")
-
-
-def load_ges(run_dir: str) -> ges.GESResult:
-    return read_back(os.path.join(run_dir, ges.STATE_FILE), lambda p: ges.load_result(run_dir), "GES state",
-                     ges_fix(run_dir))
-
-
-def load_ges_ckpt(ckpt: str, preset: Preset):
-    """A GES specialist's policy (ckpt inside <run_dir>/ckpt/: its last round's), by the preset's policy_rule."""
-    return read_back(ppo.scored_path(ckpt, preset.policy_rule), ppo.load_policy, "ppo.py checkpoint",
-                     ges_fix(os.path.dirname(os.path.dirname(ckpt))))
-
-
-def derive_seed(seed: int, *names) -> int:
-    """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
-    results do not depend on the order in which things run."""
-    keys = [zlib.crc32(str(n).encode()) for n in names]
-    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
-
-
-def ckpt_steps(path: str) -> int:
-    return int(ppo.load_checkpoint(path)["steps"])
-
-
 def score_set(path: str) -> np.ndarray:
     return np.array(read_json(path)["scores"], dtype=float)
 
@@ -1073,24 +832,7 @@ def repair(run: Run) -> None:
 # instead of mixed. (run_all.py's own reporting may change freely.)
 HASHED_FILES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py")
 # this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
-PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "run_all.py")
-
-
-def rate_job(folder: str, kind: str, task: str, seed: int, preset: Preset, steps: int = 40_960,
-             n_designs: int = 3) -> tuple:
-    """One job of `--rates` or a calibration, as a stage runs it (in-process env, one core): train an e2e `kind`
-    on `task` D2 for `steps`, then J of that policy on `n_designs` uniform D2 designs, timed by runkit.plan.job_rates
-    (PPO steps/s over the updates after the first, s per J, played score steps/s)."""
-    space, ckpt, stats = space_of(preset, task, "d2"), os.path.join(folder, "policy.pt"), {}
-
-    def score() -> int:   # the control steps J played (replays excluded)
-        designs = space.sample_uniform(np.random.default_rng(seed), n_designs)
-        score_policy(ppo.load_policy(ppo.scored_path(ckpt, preset.policy_rule)), space.full(designs), task, preset,
-                     1, stats=stats)
-        return stats["episodes_played"] * preset.env_config(ballu.BalluConfig()).episode_steps
-
-    return job_rates(lambda: train_policy(ckpt, kind, task, ballu.UniformDesign(space), steps, preset, seed), score,
-                     os.path.join(folder, "log.csv"), steps, n_designs)
+PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "codesign", "run_all.py")
 
 
 # ----------------------------------------------------------------------------------------------------------

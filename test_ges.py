@@ -29,6 +29,7 @@ from scipy.stats import multivariate_normal
 import ballu
 import ges
 import ppo
+from codesign import policies
 import run_all
 from experiments import ballu_capability, ges_demo, ppo_ballu, ppo_protocol, probe_agreement, use
 from report import animate, figures, tables
@@ -1166,7 +1167,7 @@ def test_experiments_start_level_argument_errors_name_the_range(text):
     assert ballu.spread_start_levels("obstacle") == (0, 28) and ballu.spread_start_levels("ramp", 2) == (0, 2)
     # the measured per-task default (docs/ppo_protocol): spread on the ramp, level 0 on the obstacle
     assert ballu.train_start_levels("ramp") == (0, 40) and ballu.train_start_levels("obstacle") == 0
-    assert run_all.start_levels("ramp", run_all.SMOKE) == (0, 2) and run_all.start_levels("obstacle", run_all.QUICK) == 0
+    assert policies.start_levels("ramp", run_all.SMOKE) == (0, 2) and policies.start_levels("obstacle", run_all.QUICK) == 0
 
 
 def test_ppo_rollout_split_over_workers_equals_one_process():
@@ -2684,9 +2685,9 @@ def test_run_all_probe_tiebreak_orders_only_ties():
     whole levels by how far the robot went, and never reorders two different levels (least step 0.39 deg)."""
     full = np.array([[0.45, 0.45, 0.8, 0.01], [0.45, 0.45, 0.85, 0.02], [0.45, 0.45, 0.9, 0.03]])
     trace = {full[0].tobytes(): [1.0, 2.0], full[1].tobytes(): [0.5, None], full[2].tobytes(): [50.0, 60.0]}
-    np.testing.assert_allclose(run_all.tiebreak(full, trace), [1.5e-3, -4.75e-3, 1e-2])
+    np.testing.assert_allclose(policies.tiebreak(full, trace), [1.5e-3, -4.75e-3, 1e-2])
     steps = np.diff(ballu.level_score("ramp", np.arange(ballu.MAX_LEVEL + 1)))
-    assert 2 * np.abs(run_all.tiebreak(full, trace)).max() < steps.min()
+    assert 2 * np.abs(policies.tiebreak(full, trace)).max() < steps.min()
     assert not run_all.OVERNIGHT.probe_tiebreak and not run_all.OVERNIGHT.ges_final_train   # levers: off
 
 
@@ -2749,18 +2750,18 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
     specialist alone."""
     run_dir = os.path.join(smoke_run, "ges", "obstacle-d3-K6-fps-lloyd")
     res, preset = ges.load_result(run_dir), run_all.PRESETS["smoke"]
-    space = run_all.space_of(preset, "obstacle", "d3")
+    space = policies.space_of(preset, "obstacle", "d3")
     theta = space.sample_uniform(np.random.default_rng(0), 64)
     ks = res.route(theta)
     np.testing.assert_array_equal(ges.route(res.space.to_unit(theta), res.mu_unit, res.sigma_unit), ks)
     pick = np.concatenate([np.flatnonzero(ks == k)[:1] for k in np.unique(ks)])[:3]   # one design per specialist
-    J = run_all.ges_J(run_dir, "obstacle", space, preset)(theta[pick])
+    J = policies.ges_J(run_dir, "obstacle", space, preset)(theta[pick])
     best = [ppo.scored_path(c) for c in res.ckpt]   # the preset's rule: each specialist's best policy
     alone = [ballu.score(ppo.load_policy(best[ks[i]]), space.full(theta[i]), "obstacle",
                          episodes=preset.score_episodes, start_level=preset.score_start_level)[0] for i in pick]
     np.testing.assert_array_equal(J, alone)
     obs = np.random.default_rng(2).normal(size=(5, ballu.OBS_DIM)).astype(np.float32)
-    np.testing.assert_array_equal(run_all.ges_specialist(run_dir, theta[pick[0]], preset)(obs),   # Figs. 1, 5
+    np.testing.assert_array_equal(policies.ges_specialist(run_dir, theta[pick[0]], preset)(obs),   # Figs. 1, 5
                                   ppo.load_policy(best[ks[pick[0]]])(obs))
 
 
@@ -2977,7 +2978,7 @@ def test_run_all_local_dask_cluster_runs_jobs():
     numbers' equality is the hand-started cluster's test above)."""
     ex = run_all.Run("unused", run_all.SMOKE, 0, 2, "dask").pool()
     try:
-        assert ex.submit(run_all.derive_seed, 3, "ppo", "a").result() == run_all.derive_seed(3, "ppo", "a")
+        assert ex.submit(policies.derive_seed, 3, "ppo", "a").result() == policies.derive_seed(3, "ppo", "a")
     finally:
         ex.shutdown(wait=True)
         pool.close_dask_clients()
@@ -3011,7 +3012,7 @@ def test_report_level_of_inverts_the_score_and_cells_read_ours_then_paper():
 
 def test_run_all_derived_seeds_are_pinned():
     """Another derivation (e.g. Python's salted hash()) would change every run's numbers."""
-    seed = run_all.derive_seed
+    seed = policies.derive_seed
     assert (seed(0, "ppo", "a"), seed(1, "ppo", "a"), seed(0, "a"), seed(0, "b")) == (
         1460073160, 529933479, 450999037, 1911616833)
 
@@ -3056,12 +3057,12 @@ def test_run_all_probe_schedule_scores_ges_probes_only(monkeypatch, tmp_path):
     monkeypatch.setattr(ballu, "score", fake_score)
     monkeypatch.setattr(ppo, "load_policy", lambda ckpt: ballu.stand)
     p = replace(run_all.QUICK, probe_level_steps=run_all.BISECTION, score_start_level=3)
-    space = run_all.space_of(p, "obstacle", "d2")
+    space = policies.space_of(p, "obstacle", "d2")
     theta = space.sample_uniform(np.random.default_rng(0), 2)
-    run_all.ScoreSpecialist("obstacle", space, p, probe=True)(0, "ckpt", theta)
-    run_all.ScoreSpecialist("obstacle", space, p)(0, "ckpt", theta)
+    policies.ScoreSpecialist("obstacle", space, p, probe=True)(0, "ckpt", theta)
+    policies.ScoreSpecialist("obstacle", space, p)(0, "ckpt", theta)
     trace = {}
-    run_all.PolicyJ(ballu.stand, space, "obstacle", p, trace=trace)(theta)
+    policies.PolicyJ(ballu.stand, space, "obstacle", p, trace=trace)(theta)
     assert [(s["level_steps"], s["episodes"], s["start_level"]) for s in seen] == [
         (run_all.BISECTION, None, 3), (None, 20, 3), (None, 20, 3)]
     assert list(trace.values()) == [[0.0], [0.0]] and list(trace) == [d.tobytes() for d in space.full(theta)]
@@ -3200,7 +3201,7 @@ def test_run_all_train_seconds_counts_every_attempt(tmp_path):
     assert logs.train_seconds(log) == pytest.approx(wall[19] + wall[39])
     assert wall[39] < logs.train_seconds(log) <= sum(calls)
     run = run_all.Run(str(tmp_path / "run"), run_all.SMOKE, 0, 1)
-    bo = run_all.PerDesignBO(run, "obstacle", run_all.space_of(run_all.SMOKE, "obstacle", "d2"))
+    bo = policies.PerDesignBO(run, "obstacle", policies.space_of(run_all.SMOKE, "obstacle", "d2"))
     trial = run_all.tpe.Trial(0, np.array([0.8, 0.01]), 1.0, None, 5.0)
     assert bo.trial_seconds(trial) == 5.0
     run_all.write_json(os.path.join(bo.folder(trial.x), "seconds.json"), {"train_s": 100.0, "score_s": 7.0})
@@ -3258,9 +3259,9 @@ def test_runkit_progress_counts_parallel_and_loaded_units(capsys):
 @pytest.mark.slow
 def test_runkit_plan_rates_time_each_kind_on_each_task(tmp_path):
     """--rates (the measurement behind TRAIN_RATE / SCORE_RATE) on the smoke batch, inline: its jobs mix the
-    policy kinds and tasks as the stages do, each job (run_all.rate_job) trains and scores, and the text sets the
+    policy kinds and tasks as the stages do, each job (policies.rate_job) trains and scores, and the text sets the
     measured rates beside the constants --plan uses."""
-    job = functools.partial(run_all.rate_job, preset=run_all.SMOKE, steps=128, n_designs=1)
+    job = functools.partial(policies.rate_job, preset=run_all.SMOKE, steps=128, n_designs=1)
     r = plan.measure_rates(job, ges.SerialExecutor(), 1, str(tmp_path), jobs=2)
     assert r["jobs"] == ["mlp obstacle", "moe ramp"]
     rates = np.array([r["train_steps_per_s"], r["seconds_per_J"], r["played_steps_per_s"]])
@@ -3325,8 +3326,8 @@ def test_run_all_plan_calibrates_once_where_the_run_goes(tmp_path, capsys, monke
     open_output(out, manifest, reuse=False)
     assert sorted(os.listdir(out)) == sorted([plan.CALIBRATION_FILE, "manifest.json"])
     run = run_all.Run(out, run_all.QUICK, 0, 2)
-    assert cli.calibration(run, run_all.rate_job)["train_rate"] == 444.0 and calls == [1, 2]   # --plan's rates
-    assert cli.calibration(replace(run, preset=run_all.SMOKE), run_all.rate_job) is None   # too small to time
+    assert cli.calibration(run, policies.rate_job)["train_rate"] == 444.0 and calls == [1, 2]   # --plan's rates
+    assert cli.calibration(replace(run, preset=run_all.SMOKE), policies.rate_job) is None   # too small to time
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "notes.txt").write_text("x")
     assert run_all.main(["--preset", "quick", "--plan", "--out", str(tmp_path / "other")]) == 2   # not ours
@@ -3340,9 +3341,9 @@ def test_run_all_specialist_round_zero_trains_its_own_budget(tmp_path):
     keeps a specialist that finished and retrains one cut short whose checkpoint holds no lanes' state
     (a finished round 0's copied as round 1's: it cannot go on exactly)."""
     p = replace(run_all.SMOKE, ges_first_round_steps=192, ges_round_steps=64)
-    space = run_all.space_of(p, "obstacle", "d2")
+    space = policies.space_of(p, "obstacle", "d2")
     box = ges.Box.of(space)
-    train = run_all.TrainSpecialist("obstacle", space, p.ges_round_steps, p, "", p.ges_first_round_steps)
+    train = policies.TrainSpecialist("obstacle", space, p.ges_round_steps, p, "", p.ges_first_round_steps)
     sampler = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.1), box, seed=1)
     a, b = str(tmp_path / "r0.pt"), str(tmp_path / "r1.pt")
     train(0, 0, sampler, None, a)
@@ -3362,13 +3363,13 @@ def test_run_all_specialist_killed_mid_round_resumes_exactly(tmp_path, monkeypat
     and learning curve equal an uninterrupted one's, and ges_core_seconds counts its training once (the log's
     rows past the checkpoint are dropped)."""
     p = replace(run_all.SMOKE, ges_first_round_steps=384, ges_round_steps=64)
-    monkeypatch.setattr(run_all, "ppo_config", lambda preset: replace(
+    monkeypatch.setattr(policies, "ppo_config", lambda preset: replace(
         ppo.PPOConfig(num_envs=preset.ppo_envs, num_steps=preset.ppo_rollout), ckpt_every=1))
-    space = run_all.space_of(p, "obstacle", "d2")
+    space = policies.space_of(p, "obstacle", "d2")
     warm = str(tmp_path / "warm.pt")
     wide = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.3), ges.Box.of(space), seed=5)
-    run_all.TrainSpecialist("obstacle", space, 128, p)(0, 0, wide, None, warm)   # a 128-step policy
-    train = run_all.TrainSpecialist("obstacle", space, p.ges_round_steps, p, warm, p.ges_first_round_steps)
+    policies.TrainSpecialist("obstacle", space, 128, p)(0, 0, wide, None, warm)   # a 128-step policy
+    train = policies.TrainSpecialist("obstacle", space, p.ges_round_steps, p, warm, p.ges_first_round_steps)
     sampler = ges.GaussianSampler(np.full(2, 0.5), np.full(2, 0.1), ges.Box.of(space), seed=1)
     a, b = (str(tmp_path / d / "ckpt" / "spec0_round00.ckpt") for d in "ab")
     os.makedirs(os.path.dirname(a))

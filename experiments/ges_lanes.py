@@ -1,6 +1,6 @@
 """experiments/ges_lanes.py -- does a GES specialist learn anything in its rounds? Lane layouts, screened.
 
-A specialist round trains `ges_round_steps` PPO steps in a fresh env (run_all.TrainSpecialist): with the quick
+A specialist round trains `ges_round_steps` PPO steps in a fresh env (policies.TrainSpecialist): with the quick
 preset's 10k steps on 32 lanes a lane runs 312 steps per round, less than one 400-step episode, so no episode
 ends, the curriculum never moves and PPO sees only episodes' beginnings. This study fine-tunes the e2e MLP on
 each final territory of a finished run_all GES run, round by round exactly as GES does (same round steps and
@@ -29,6 +29,7 @@ import numpy as np
 import ballu
 import ges
 import ppo
+from codesign import policies
 import run_all
 from experiments import args
 from runkit.stats import paired_comparison
@@ -63,7 +64,7 @@ class Uniform:
 def specialist(task, sp, preset, mlp_ckpt, mu, sigma, box, k, seed, rounds, folder, uniform=False) -> str:
     """Specialist k from `mlp_ckpt` ('': random init): `rounds` rounds on N(mu, sigma) (or uniform), as ges_round
     calls it."""
-    trainer = run_all.TrainSpecialist(task, run_all.space_of(preset, task, sp), preset.ges_round_steps, preset,
+    trainer = policies.TrainSpecialist(task, policies.space_of(preset, task, sp), preset.ges_round_steps, preset,
                                       mlp_ckpt)
     ckpt_in = None
     for r in range(rounds):
@@ -109,11 +110,11 @@ def one(run_dir, task, sp, preset, lanes, rollout, variant, seed, out, rounds=No
                                                 result.space, k, seed, rounds, folder, variant == "u")
                                                for k in range(K)])))
     train_s = time.time() - t0
-    space = run_all.space_of(preset, task, sp)
+    space = policies.space_of(preset, task, sp)
     designs = run_all.Run(run_dir, preset, 0, 1).test_designs(task, sp)
     routed, J = result.route(designs), np.empty(len(designs))
     for k in np.unique(routed):
-        J[routed == k] = run_all.score_policy(ppo.load_policy(ppo.scored_path(ckpts[k], preset.policy_rule)),
+        J[routed == k] = policies.score_policy(ppo.load_policy(ppo.scored_path(ckpts[k], preset.policy_rule)),
                                               space.full(designs[routed == k]), task, preset, workers)
     res = {"layout": [lanes, rollout], "uniform": variant == "u", "scratch": variant == "s", "seed": seed,
            "rounds": rounds, "round_steps": preset.ges_round_steps, "J": J.tolist(), "routed": routed.tolist(),

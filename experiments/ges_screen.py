@@ -30,6 +30,7 @@ HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, HERE)
 
 import ges  # noqa: E402
+from codesign import policies  # noqa: E402
 import run_all  # noqa: E402
 from experiments import args as cli_args  # noqa: E402
 from experiments.step_matched import fmt, prepare as copy_warm_starts  # noqa: E402
@@ -96,19 +97,19 @@ def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
                                                                          screen["cells"]), workers=workers)
     chosen = {}
     for t, s in r.cells():
-        res, space = run_all.load_ges(r.path("ges", r.main_ges(t, s))), run_all.space_of(r.preset, t, s)
-        J, best, ckpt = run_all.ScoreSpecialist(t, space, r.preset, workers), [], []
+        res, space = policies.load_ges(r.path("ges", r.main_ges(t, s))), policies.space_of(r.preset, t, s)
+        J, best, ckpt = policies.ScoreSpecialist(t, space, r.preset, workers), [], []
         for k, i in enumerate(res.ids):   # every round's checkpoint of specialist i (a final training's too)
             rounds = [c for c in (os.path.join(res.run_dir, ges.CKPT_DIR, f"spec{i}_round{x:02d}.ckpt")
                                   for x in range(res.rounds + 1)) if os.path.exists(c)]
             sampler = ges.GaussianSampler(res.mu_unit[k], res.sigma_unit[k], res.space)
-            designs = sampler(np.random.default_rng(run_all.derive_seed(r.seed, "pick", t, s, k)), n)
+            designs = sampler(np.random.default_rng(policies.derive_seed(r.seed, "pick", t, s, k)), n)
             best.append(int(np.argmax([np.mean(J(k, c, designs)) for c in rounds])))
             ckpt.append(rounds[best[-1]])
         picked = replace(res, ckpt=ckpt)
         theta = r.test_designs(t, s)
         key = f"{run_all.score_key(r, t, s, 'ges')}-picked"
-        run_all.cached_scores(r, key, lambda tr: ges.routed_evaluator(picked, run_all.ScoreSpecialist(
+        run_all.cached_scores(r, key, lambda tr: ges.routed_evaluator(picked, policies.ScoreSpecialist(
             t, space, r.preset, workers, trace=tr))(theta), space.full(theta))
         chosen[f"{t}-{s}"] = best
     write_json(os.path.join(r.out, "picked.json"), chosen)

@@ -10,7 +10,7 @@ e2e MLP and the step-matched e2e MLP, on designs drawn from its round-0 territor
 A committed run keeps each specialist's last round only; every round's checkpoints are in its resume state in git
 history (`extract` takes the main GES runs out of it). For specialist k, `designs` designs are drawn from
 N(mu_k, sigma_k) clipped to the box (the territory of history.json's entry 0, what round 0 trained on, and of its
-last entry, what routes the test designs) and each is scored with the run's J (run_all.score_policy, the
+last entry, what routes the test designs) and each is scored with the run's J (policies.score_policy, the
 preset's 20 episodes) by: the specialist's best policy of each round, the cell's e2e MLP, and its step-matched
 e2e MLP (experiments/step_matched). Every (policy, design set) J is one cached job. Results: docs/ges_schedule/.
 """
@@ -30,6 +30,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, HERE)
 
+from codesign import policies  # noqa: E402
 import run_all  # noqa: E402
 from experiments.step_matched import git_show  # noqa: E402
 from runkit.files import read_json, write_json  # noqa: E402
@@ -65,7 +66,7 @@ def J_job(key: str, ckpt: str, task: str, designs_full: list, preset_name: str, 
     if os.path.exists(path):
         return read_json(path)["scores"]
     preset = run_all.PRESETS[preset_name]
-    j = run_all.score_policy(run_all.ppo.load_policy(ckpt), np.array(designs_full), task, preset, 1)
+    j = policies.score_policy(run_all.ppo.load_policy(ckpt), np.array(designs_full), task, preset, 1)
     write_json(path, {"key": key, "ckpt": ckpt, "designs": designs_full, "scores": np.asarray(j).tolist()})
     return np.asarray(j).tolist()
 
@@ -76,7 +77,7 @@ def jobs_of(run_folder: str, terr: str, matched: str, cells: list, n: int) -> li
     jobs = []
     for cell in cells:
         task, sp = cell.split("-")
-        space = run_all.space_of(preset, task, sp)
+        space = policies.space_of(preset, task, sp)
         hist = read_json(os.path.join(terr, "ges", MAIN[cell], "history.json"))["rounds"]
         rounds = len(hist) - 1
         for k in range(len(hist[0]["mu"])):

@@ -19,7 +19,8 @@ from scipy.stats import spearmanr
 import ballu
 import ppo
 from experiments import args
-from run_all import BISECTION, TASKS, derive_seed, read_back, say
+from codesign.policies import derive_seed
+from run_all import BISECTION, TASKS, read_back, say
 from runkit.files import BadInput
 
 PROBE_BAR = {"same_winner_pct": 80.0, "spearman": 0.9}   # [ours] the bar for using a cheaper probe score in GES

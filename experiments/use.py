@@ -10,7 +10,7 @@ Contents:
      command line), `designs_file` (a CSV with a header of names), `level_arg` (--level, or --height in cm / deg)
   2. policies, one rule: `resolve` (RUN METHOD CELL, or CHECKPOINT CELL, or GES-RUN-FOLDER CELL); `play`, the policy
      a design is played by (GES: the density router, paper eq. 10)
-  3. `score`: J per design as the run scores it (run_all.score_policy), each episode's level and final x
+  3. `score`: J per design as the run scores it (policies.score_policy), each episode's level and final x
   4. watch: one episode filmed (report/animate.py), alone or beside another method's
   5. the command line
 
@@ -32,6 +32,7 @@ import numpy as np
 import ballu
 import ges
 import ppo
+from codesign import policies
 import run_all
 from experiments.args import DESIGN_HELP, BadArg, Design, add_workers, command, design_arg, positive, program
 from report import animate
@@ -125,11 +126,11 @@ def run_of(folder: str, workers: int = 2):
 
 
 def load_ges(run_dir: str, preset) -> ges.GESResult:
-    """A GES run's final territories and specialists: run_all.load_ges (state.json) in a run's own folder; in a
+    """A GES run's final territories and specialists: policies.load_ges (state.json) in a run's own folder; in a
     committed one, history.json's last entry (the same mu, sigma and checkpoints; each specialist's last
     checkpoint kept beside it, without ckpt/)."""
     if os.path.isfile(os.path.join(run_dir, ges.STATE_FILE)):
-        return run_all.load_ges(run_dir)
+        return policies.load_ges(run_dir)
     if not os.path.isfile(os.path.join(run_dir, ges.HISTORY_FILE)):
         raise UseError(f"{run_dir}: no GES run there (no {ges.STATE_FILE} or {ges.HISTORY_FILE}); a run folder "
                        f"takes RUN METHOD CELL")
@@ -160,7 +161,7 @@ def check_fits(policy, task: str, what: str):
 
 
 def resolve(words: list, method: str | None = None, workers: int = 2) -> Target:
-    """RUN METHOD CELL: that run's policy (its scored checkpoint, run_all.load_policy) or main GES run. CHECKPOINT
+    """RUN METHOD CELL: that run's policy (its scored checkpoint, policies.load_policy) or main GES run. CHECKPOINT
     CELL or GES-RUN-FOLDER CELL: that one, scored by the preset of the run folder it lies in, else quick's (the
     facts' J: 20 episodes from the task's start level) [ours]. `method` replaces the words' (--vs)."""
     cells = [f"{t}-{s}" for t in run_all.TASKS for s in run_all.SPACES]
@@ -171,7 +172,7 @@ def resolve(words: list, method: str | None = None, workers: int = 2) -> Target:
     if len(words) == 2:
         up = run_above(where)
         preset = run_of(up).preset if up else run_all.QUICK
-        t = Target("ges" if os.path.isdir(where) else "checkpoint", task, sp, run_all.space_of(preset, task, sp),
+        t = Target("ges" if os.path.isdir(where) else "checkpoint", task, sp, policies.space_of(preset, task, sp),
                    preset, where)
         if os.path.isdir(where):
             return replace(t, ges=load_ges(where, preset))
@@ -182,13 +183,13 @@ def resolve(words: list, method: str | None = None, workers: int = 2) -> Target:
     run, method = run_of(where, workers), method or words[1]
     if method not in METHODS:
         raise UseError(f"method {method!r}: one of {', '.join(METHODS)}")
-    t = Target(method, task, sp, run_all.space_of(run.preset, task, sp), run.preset, where)
+    t = Target(method, task, sp, policies.space_of(run.preset, task, sp), run.preset, where)
     if method == "ges":
         return replace(t, ges=load_ges(run.path("ges", run.main_ges(task, sp)), run.preset))
     name = f"baseline-{task}" if method == "baseline" else f"{method}-{task}-{sp}"
-    if not os.path.exists(ppo.scored_path(run_all.policy_ckpt(run, name), run.preset.policy_rule)):
+    if not os.path.exists(ppo.scored_path(policies.policy_ckpt(run, name), run.preset.policy_rule)):
         raise UseError(f"{where}: no {method} policy for {task}-{sp} (policies/{name}/ has no checkpoint)")
-    return replace(t, policy=check_fits(run_all.load_policy(run, method, task, sp), task, f"policies/{name}"))
+    return replace(t, policy=check_fits(policies.load_policy(run, method, task, sp), task, f"policies/{name}"))
 
 
 def route(res, theta) -> tuple:
@@ -203,12 +204,12 @@ def play(t: Target, design: Design) -> tuple:
     if t.ges is None:
         return t.policy, METHODS.get(t.method, t.where)
     k, logd = route(t.ges, design.theta)
-    pol = check_fits(run_all.load_ges_ckpt(t.ges.ckpt[k], t.preset), t.task, t.ges.ckpt[k])
+    pol = check_fits(policies.load_ges_ckpt(t.ges.ckpt[k], t.preset), t.task, t.ges.ckpt[k])
     return pol, f"GES: specialist {t.ges.ids[k]} of {len(logd)} (log density {logd[k]:.2f})"
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 3. score: J per design, as the run scores (run_all.score_policy: its episodes, start level, episode length)
+# 3. score: J per design, as the run scores (policies.score_policy: its episodes, start level, episode length)
 # ----------------------------------------------------------------------------------------------------------
 def walk(task: str, start: int, xs: list) -> tuple:
     """Each episode's level, replayed from the final x's by the curriculum's rule [facts] (ballu.curriculum_update;
@@ -232,9 +233,9 @@ def score(t: Target, designs: list, episodes: int | None = None, workers: int = 
             rows[i].update(specialist=t.ges.ids[k], log_density=float(logd[k]), k=k)
         groups.setdefault(rows[i].get("k"), []).append(i)
     for k, idx in groups.items():
-        pol = t.policy if k is None else check_fits(run_all.load_ges_ckpt(t.ges.ckpt[k], preset), t.task, t.ges.ckpt[k])
+        pol = t.policy if k is None else check_fits(policies.load_ges_ckpt(t.ges.ckpt[k], preset), t.task, t.ges.ckpt[k])
         full, trace = np.array([designs[i].full for i in idx]), {}
-        j = run_all.score_policy(pol, full, t.task, preset, workers, label + ("" if k is None else f" specialist {k}"),
+        j = policies.score_policy(pol, full, t.task, preset, workers, label + ("" if k is None else f" specialist {k}"),
                                  trace=trace)
         for i, jj, f in zip(idx, j, full):
             levels, last = walk(t.task, start_level(t.task, preset), trace[f.tobytes()])
@@ -294,7 +295,7 @@ def cmd_watch(a) -> None:
     for tg in targets:
         pol, what = play(tg, design)
         print(f"filming {what} on {design.label} at {animate.level_text(t.task, level)} ...", flush=True)
-        cfg = tg.preset.env_config(ballu.policy_config(pol, tg.task))   # as run_all.score_policy plays it
+        cfg = tg.preset.env_config(ballu.policy_config(pol, tg.task))   # as policies.score_policy plays it
         f = animate.film(pol, tg.task, design.full, level, cfg, a.every, a.max_steps, a.size)
         print(f"  {len(f['frames'])} frames, {animate.outcome(tg.task, f['final_x'], f['blowup'])[0]}", flush=True)
         films.append((f, [what, design_text(design)]))

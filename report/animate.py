@@ -35,7 +35,7 @@ def film(policy, task: str, design, level: int, cfg, every: int = 4, max_steps: 
          size=(WIDTH, HEIGHT)) -> dict:
     """Play one episode of `policy` on one full design (l_f, l_t, gcr, spcf) at `level` and render a side view
     every `every` control steps, plus the last state before the episode ends. `cfg`: the env settings the policy
-    is scored with (run_all.score_policy's), so the episode is the one J plays at that level. `max_steps` cuts it
+    is scored with (codesign.policies.score_policy's), so the episode is the one J plays at that level. `max_steps` cuts it
     short (tests). Returns the frames (RGB arrays), their times (s) and pelvis x (m), the final x (None when cut
     short) and whether the episode blew up (ballu's safety limits)."""
     env = BalluEnv(1, cfg, curriculum=False)
