@@ -3620,6 +3620,8 @@ def test_use_design_arg_forms():
     assert d.full.tolist() == [0.45, 0.45, 0.8, 0.01]
     assert use.design_arg("gcr=0.8,spcf=0.01,l=0.3", d3).full.tolist() == [0.3, 0.3, 0.8, 0.01]
     assert use.design_arg("l_f=0.45,l_t=0.45,gcr=0.8,spcf=0.01", d2).full.tolist() == d.full.tolist()
+    with pytest.raises(use.UseError, match="l_f = l_t = l: give l"):   # D3 ties the legs to l
+        use.design_arg("gcr=0.8,spcf=0.01,l_f=0.3", d3)
 
 
 @pytest.mark.parametrize("text, words", [
@@ -3869,7 +3871,8 @@ def test_args_old_forms_still_work_with_a_deprecation(capsys):
 def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_path, capsys):
     """experiments/ges_screen.py on a finished run: prepare scores the e2e MLP, the step-matched one and the run's
     GES; a lever (--set) reruns GES from the run's e2e MLPs on the screen's cells, and its table row compares them
-    paired. The lever 'as run' reproduces the run's own GES scores; a lever renamed with other values is refused."""
+    paired. The lever 'as run' reproduces the run's own GES scores, and pick on it the pick on the run's GES; a lever
+    renamed with other values is refused."""
     from experiments import ges_screen
     work = str(tmp_path / "w")
     assert ges_screen.main(["prepare", smoke_run, "--state", smoke_run, "--ges-runs", smoke_run, "--out", work,
@@ -3883,10 +3886,15 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
     assert ckpt[0].endswith(f"round{run_all.SMOKE.ges_max_rounds:02d}.ckpt")   # the final training's
     picked = ges_screen.pick(work, "same", n=2)   # each specialist's policy chosen across its rounds
     assert len(picked["obstacle-d2"]) == 3 and all(0 <= b < run_all.SMOKE.ges_max_rounds for b in picked["obstacle-d2"])
+    assert ges_screen.pick(work, "run", n=2) == picked   # the run's own GES (the lever "same" reproduces it)
+    assert read_json(os.path.join(work, "scores", f"{key}-picked.json"))["scores"] == \
+        read_json(os.path.join(work, "same", "scores", f"{key}-picked.json"))["scores"]
     capsys.readouterr()
+    assert ges_screen.main(["run", work, "--lever", "run"]) == 2 and ges_screen.main(["pick", work, "--lever", "x"]) == 2
     assert ges_screen.main(["run", work, "--lever", "final", "--set", "probe_tiebreak=true"]) == 2
     assert "name another lever" in capsys.readouterr().err
     assert ges_screen.main(["table", work]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 3 |")]
-    assert len(rows) == 3 and "same + pick" in rows[1] and "ges_final_train=true" in rows[2]
+    assert len(rows) == 4 and "run + pick" in rows[0] and "same + pick" in rows[2]
+    assert "ges_final_train=true" in rows[3]
     assert all(r.count("p=") == 3 for r in rows)

@@ -96,8 +96,11 @@ def design_arg(text: str, space) -> Design:
     implied = dict(zip(ballu.DESIGN_NAMES, full), l=full[0] if full[0] == full[1] else None)
     for n, v in given.items():
         if n not in space.names and (implied[n] is None or abs(implied[n] - v) > 1e-9):
+            there = f"{n} = {implied[n]} there"
+            if n in ("l_f", "l_t") and "l" in space.names:
+                there = "l_f = l_t = l: give l"
             raise BadArg(f"design {text!r}: {n} is not free in {space.task} D{space.d} (free: "
-                         f"{', '.join(space.names)}; {n} = {implied[n]} there)")
+                         f"{', '.join(space.names)}; {there})")
     return Design(text, theta, full)
 
 
