@@ -4,7 +4,7 @@
         --ges-runs ~/runs/terr/seed0 --out ~/runs/screen/seed0
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever steps2m --set ges_first_round_steps=1400000
-    python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final
+    python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final     # --lever run: the run's own GES
     python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
 
 One fixed protocol for every lever [ours, issue 95]: the run's own e2e MLPs (with optimiser state, from its resume
@@ -40,6 +40,7 @@ from runkit.stats import paired_comparison  # noqa: E402
 
 CELLS = ("obstacle-d2", "obstacle-d3")   # the issue's screen cells: the obstacle, where GES's lead is open
 BASES = ("mlp", run_all.MATCHED, "ges")   # what every lever is compared with, scored at prepare
+RUN = "run"   # the lever name of the run's own GES: `pick --lever run` picks its specialists' rounds
 
 
 def base_run(work: str, workers: int = 1, preset=None) -> run_all.Run:
@@ -69,6 +70,8 @@ def prepare(run_folder: str, state: str, out: str, ges_runs: str | None, cells: 
 def run(work: str, lever: str, sets: list, workers: int) -> None:
     """One lever: GES on the screen's cells with the run's preset and `sets` overrides, warm-started from the
     run's e2e MLPs, then its test scores. In <work>/<lever>/, resumable."""
+    if lever == RUN:
+        raise cli_args.BadArg(f"--lever {RUN}: the run's own GES (pick's); name this lever otherwise")
     screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
     preset = lever_preset(base.preset, sets, screen["cells"])
     old = screen["levers"].get(lever)
@@ -93,8 +96,10 @@ def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
     worse: docs/ges_schedule, territories), then the test designs routed (eq. 10) and scored with the chosen
     policies: score set test-<cell>-ges-picked. Returns cell -> each specialist's chosen round."""
     screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
-    r = replace(base, out=os.path.join(work, lever), preset=lever_preset(base.preset, screen["levers"][lever],
-                                                                         screen["cells"]), workers=workers)
+    if lever != RUN and lever not in screen["levers"]:
+        raise cli_args.BadArg(f"--lever {lever}: not run yet; one of {', '.join([RUN, *screen['levers']])}")
+    r = replace(base, out=lever_folder(work, lever), workers=workers,
+                preset=lever_preset(base.preset, screen["levers"].get(lever, []), screen["cells"]))
     chosen = {}
     for t, s in r.cells():
         res, space = policies.load_ges(r.path("ges", r.main_ges(t, s))), policies.space_of(r.preset, t, s)
@@ -116,6 +121,11 @@ def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
     return chosen
 
 
+def lever_folder(work: str, lever: str) -> str:
+    """Where a lever's GES runs and scores are: the lever "run" is the run's own GES (prepare's --ges-runs)."""
+    return work if lever == RUN else os.path.join(work, lever)
+
+
 def lever_preset(preset, sets: list, cells):
     """The run's preset with a lever's --set overrides (runkit.cli.override, checked there) on the screen's cells."""
     return replace(override(preset, sets)[0], cells=tuple(cells))
@@ -133,11 +143,11 @@ def table(works: list) -> str:
              "GES - run's GES |", "|---" * 8 + "|"]
     for work in works:
         screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
-        for lever, sets in screen["levers"].items():
+        for lever, sets in [(RUN, []), *screen["levers"].items()]:
             preset = lever_preset(base.preset, sets, screen["cells"])
-            r = replace(base, out=os.path.join(work, lever), preset=preset)
+            r = replace(base, out=lever_folder(work, lever), preset=preset)
             for t, s in r.cells():
-                for suffix in ("", "-picked"):   # the lever, and the lever with each policy picked (pick)
+                for suffix in ("-picked",) if lever == RUN else ("", "-picked"):   # the lever, then picked (pick)
                     g = scores(r.out, run_all.score_key(r, t, s, "ges") + suffix)
                     if g is None:
                         continue
