@@ -3894,10 +3894,21 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
         read_json(os.path.join(work, "same", "scores", f"{key}-picked.json"))["scores"]
     capsys.readouterr()
     assert ges_screen.main(["run", work, "--lever", "run"]) == 2 and ges_screen.main(["pick", work, "--lever", "x"]) == 2
+    # --reuse-round0: the run's round-0 specialists kept as they are (not retrained), the lever acts from round 1;
+    # here the run's specialist 1 is given specialist 0's round-0 policy, which no training would reproduce
+    os.remove(os.path.join(work, "ges"))
+    shutil.copytree(os.path.join(smoke_run, "ges"), os.path.join(work, "ges"))
+    ck = os.path.join("ges", "obstacle-d2-K3-fps-lloyd", "ckpt", "spec1_round00.ckpt")
+    shutil.copy(os.path.join(work, ck.replace("spec1", "spec0")), os.path.join(work, ck))
+    assert ges_screen.main(["run", work, "--lever", "tie", "--set", "probe_tiebreak=true", "--reuse-round0"]) == 0
+    assert read_bytes(os.path.join(work, "tie", ck)) == read_bytes(os.path.join(work, ck.replace("spec1", "spec0")))
+    assert os.path.exists(os.path.join(work, "tie", "scores", f"{key}.json"))
+    assert ges_screen.main(["run", work, "--lever", "x", "--set", "ges_first_round_steps=96", "--reuse-round0"]) == 2
+    assert ges_screen.main(["run", work, "--lever", "tie", "--set", "probe_tiebreak=true"]) == 2   # not reused now
     assert ges_screen.main(["run", work, "--lever", "final", "--set", "probe_tiebreak=true"]) == 2
     assert "name another lever" in capsys.readouterr().err
     assert ges_screen.main(["table", work]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 3 |")]
-    assert len(rows) == 4 and "run + pick" in rows[0] and "same + pick" in rows[2]
-    assert "ges_final_train=true" in rows[3]
+    assert len(rows) == 5 and "run + pick" in rows[0] and "same + pick" in rows[2]
+    assert "ges_final_train=true" in rows[3] and "probe_tiebreak=true; round 0 the run's" in rows[4]
     assert all(r.count("p=") == 3 for r in rows)

@@ -2,7 +2,7 @@
 
     python -m experiments.ges_screen prepare docs/overnight/seed0 --state 9eb76ac:docs/overnight/seed0/state \
         --ges-runs ~/runs/terr/seed0 --out ~/runs/screen/seed0
-    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true
+    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true --reuse-round0
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever steps2m --set ges_first_round_steps=1400000
     python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final     # --lever run: the run's own GES
     python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
@@ -67,17 +67,44 @@ def prepare(run_folder: str, state: str, out: str, ges_runs: str | None, cells: 
     write_json(os.path.join(out, "screen.json"), {"cells": list(cells), "levers": {}})
 
 
-def run(work: str, lever: str, sets: list, workers: int) -> None:
+# the preset fields a lever may change and still start from the run's own round 0 (--reuse-round0): they act
+# after round 0's training, which depends on GES's initialisation, its seed and round 0's steps alone
+AFTER_ROUND0 = {"probe_tiebreak", "ges_probes", "ges_init_designs", "ges_final_train", "ges_round_steps",
+                "ges_max_rounds", "ges_target_coverage"}
+
+
+def reuse_round0(work: str, folder: str, r) -> None:
+    """The run's round-0 specialists (checkpoint with optimiser, best window, log) copied into the lever's GES
+    runs: GES's train_fn keeps a checkpoint that has its steps (policies.train_policy), so round 0 is the run's
+    own and the lever trains from round 1 on, a quarter of an overnight specialist's steps."""
+    for t, s in r.cells():
+        name = r.main_ges(t, s)
+        src, dst = os.path.join(work, "ges", name, ges.CKPT_DIR), os.path.join(folder, "ges", name, ges.CKPT_DIR)
+        os.makedirs(dst, exist_ok=True)
+        for f in sorted(os.listdir(src)):
+            if "_round00" in f and not os.path.exists(os.path.join(dst, f)):
+                shutil.copy(os.path.join(src, f), os.path.join(dst, f))
+
+
+def run(work: str, lever: str, sets: list, workers: int, round0: bool = False) -> None:
     """One lever: GES on the screen's cells with the run's preset and `sets` overrides, warm-started from the
-    run's e2e MLPs, then its test scores. In <work>/<lever>/, resumable."""
+    run's e2e MLPs, then its test scores. In <work>/<lever>/, resumable. `round0`: from the run's own round 0
+    (reuse_round0), for levers that change only AFTER_ROUND0 fields."""
     if lever == RUN:
         raise cli_args.BadArg(f"--lever {RUN}: the run's own GES (pick's); name this lever otherwise")
     screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
     preset = lever_preset(base.preset, sets, screen["cells"])
-    old = screen["levers"].get(lever)
-    if old is not None and old != list(sets):
-        raise cli_args.BadArg(f"lever {lever!r} ran with --set {old}, not {sets}: name another lever")
+    old, reused = screen["levers"].get(lever), screen.setdefault("round0_reused", [])
+    if old is not None and (old != list(sets) or (lever in reused) != round0):
+        raise cli_args.BadArg(f"lever {lever!r} ran with --set {old}{' --reuse-round0' * (lever in reused)}, not "
+                              f"{sets}{' --reuse-round0' * round0}: name another lever")
+    if round0:
+        changed = {x.partition("=")[0] for x in sets} - AFTER_ROUND0
+        if changed or not os.path.isdir(os.path.join(work, "ges")):
+            raise cli_args.BadArg(f"--reuse-round0: needs prepare's --ges-runs and levers of "
+                                  f"{', '.join(sorted(AFTER_ROUND0))} alone ({', '.join(sorted(changed))} change round 0)")
     screen["levers"][lever] = list(sets)
+    screen["round0_reused"] = sorted(set(reused) | {lever} if round0 else set(reused))
     write_json(os.path.join(work, "screen.json"), screen)
     folder = os.path.join(work, lever)
     os.makedirs(folder, exist_ok=True)
@@ -85,6 +112,8 @@ def run(work: str, lever: str, sets: list, workers: int) -> None:
         os.symlink(os.path.abspath(os.path.join(work, "policies")), os.path.join(folder, "policies"))
     shutil.copy(os.path.join(work, "manifest.json"), os.path.join(folder, "manifest.json"))
     r = replace(base, out=folder, preset=preset, workers=workers)
+    if round0:
+        reuse_round0(work, folder, r)
     run_all.run_stage(r, "ges")
     jobs = [run_all.ScoreSet(folder, preset, r.seed, t, s, "ges", r.main_ges(t, s)) for t, s in r.cells()]
     run_all.score_sets(r, jobs, f"lever {lever}: GES on the test designs")
@@ -153,7 +182,9 @@ def table(works: list) -> str:
                         continue
                     others = [scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
                     cols = [fmt(paired_comparison(g, o)) if o is not None else "-" for o in others]
-                    lines.append(f"| {base.seed} | {lever}{' + pick' if suffix else ''} ({', '.join(sets) or 'as run'}) "
+                    how = ", ".join(sets) or "as run"
+                    how += "; round 0 the run's" if lever in screen.get("round0_reused", []) else ""
+                    lines.append(f"| {base.seed} | {lever}{' + pick' if suffix else ''} ({how}) "
                                  f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(preset.ges_max_rounds)):,} "
                                  f"| {g.mean():.1f} | " + " | ".join(cols) + " |")
     return "\n".join(lines) + "\n"
@@ -173,6 +204,7 @@ def main(argv=None) -> int:
     p.add_argument("work")
     p.add_argument("--lever", required=True, help="the lever's name (its folder)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="run_all's preset overrides")
+    p.add_argument("--reuse-round0", action="store_true", help="start from the run's own round-0 specialists")
     cli_args.add_workers(p)
     p = cli_args.command(sub, "pick", "after a lever: each specialist's policy picked across rounds, then J", __doc__)
     p.add_argument("work")
@@ -188,7 +220,7 @@ def main(argv=None) -> int:
             prepare(a.run_folder, a.state, os.path.expanduser(a.out), a.ges_runs and os.path.expanduser(a.ges_runs),
                     tuple(c for c in a.cells.split(",") if c), a.workers)
         elif a.cmd == "run":
-            run(os.path.expanduser(a.work), a.lever, a.set, a.workers)
+            run(os.path.expanduser(a.work), a.lever, a.set, a.workers, a.reuse_round0)
         elif a.cmd == "pick":
             print(pick(os.path.expanduser(a.work), a.lever, a.designs, a.workers))
         else:
