@@ -58,7 +58,7 @@ def prepare(run_folder: str, state: str, out: str, ges_runs: str | None, cells: 
         dst = os.path.join(out, "policies", f"{run_all.MATCHED}-{c}", "policy_best.pt")
         os.makedirs(os.path.dirname(dst), exist_ok=True)
         shutil.copy(src, dst)
-    if ges_runs:
+    if ges_runs and not os.path.lexists(os.path.join(out, "ges")):   # a rerun of prepare goes on
         os.symlink(os.path.abspath(os.path.join(ges_runs, "ges")), os.path.join(out, "ges"))
     r = base_run(out, workers)
     jobs = [run_all.ScoreSet(out, r.preset, r.seed, *c.split("-"), m, r.main_ges(*c.split("-")) if m == "ges" else None)
