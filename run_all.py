@@ -827,10 +827,10 @@ def repair(run: Run) -> None:
             train_baseline(run, *job)
 
 
-# the code that produces the numbers (simulator, PPO, GES, TPE; lanes.py: score's workers), hashed with
-# RESULTS_FORMAT into the manifest (runkit.folder.code_hash): a results folder made by other code is refused
-# instead of mixed. (run_all.py's own reporting may change freely.)
-HASHED_FILES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py")
+# the code that produces the numbers (simulator, PPO, GES, TPE; lanes.py: score's workers; policies.py: how a run
+# trains and scores), hashed with RESULTS_FORMAT into the manifest (runkit.folder.code_hash): a results folder made
+# by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)
+HASHED_FILES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py", "codesign/policies.py")
 # this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
 PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "codesign", "run_all.py")
 
