@@ -3803,6 +3803,7 @@ COMMAND_LINES = [   # (the module holding a file's main, its name, argv); [] = r
     ("experiments.probe_agreement", "main", ["--help"]), ("experiments.same_results", "main", ["--help"]),
     ("run_all", "main", ["--help"]), ("experiments.step_matched", "main", ["--help"]),
     ("experiments.ges_territories", "main", ["--help"]), ("experiments.ges_screen", "main", ["--help"]),
+    ("experiments.rerun", "main", ["--help"]),
 ]
 
 
@@ -3868,6 +3869,24 @@ def test_args_old_forms_still_work_with_a_deprecation(capsys):
                                        "--K 2\n")
     assert args.legacy(["--demo=d"], old, "p") == ["demo", "--out", "d"]
     assert args.legacy(["--sweep"], old, "p") == ["sweep"] and args.legacy(["demo"], old, "p") == ["demo"]
+
+
+def test_rerun_reuses_the_runs_baseline_policies(smoke_run, tmp_path, capsys):
+    """experiments/rerun.py: a new run folder with today's code holding a finished run's baseline policies; its
+    baselines stage keeps every one (not retrained: the files are untouched) and records what the run recorded."""
+    from experiments import rerun
+    out = str(tmp_path / "again")
+    assert rerun.main([smoke_run, "--state", smoke_run, "--out", out, "--set", "n_test=2"]) == 0
+    seed = str(read_json(os.path.join(smoke_run, "manifest.json"))["seed"])
+    assert f"python run_all.py --preset smoke --seed {seed} --out" in capsys.readouterr().out
+    ckpt = os.path.join(out, "policies", "moe-ramp-d3", "policy.pt")
+    stamp = os.stat(ckpt).st_mtime_ns
+    assert run_all.main(["--preset", "smoke", "--seed", seed, "--out", out, "--set", "n_test=2", "--only",
+                         "baselines", "--workers", "1"]) == 0
+    assert os.stat(ckpt).st_mtime_ns == stamp
+    assert read_json(os.path.join(out, "stages", "baselines.json"))["result"] == \
+        read_json(os.path.join(smoke_run, "stages", "baselines.json"))["result"]
+    assert rerun.main([smoke_run, "--state", smoke_run, "--out", out]) == 2   # a rerun starts a new folder
 
 
 @pytest.mark.slow

@@ -42,12 +42,12 @@ def git_show(spec: str) -> bytes:
     return subprocess.run(["git", "-C", HERE, "show", spec], check=True, capture_output=True).stdout
 
 
-def prepare(run_folder: str, state: str, out: str) -> None:
-    """The e2e MLPs with optimiser state from `state` (commit:folder or commit:file.tar) and the run's manifest and
-    GES stage from its results.json, into `out`."""
+def extract_policies(run_folder: str, state: str, out: str, wanted: list) -> None:
+    """The policies `wanted` (folder names under policies/) with optimiser state from `state` (commit:folder,
+    commit:file.tar, or a run's own folder), into out/policies/; each checked to be the committed one of
+    `run_folder` (its scored checkpoint's weights and steps)."""
     commit, path = state.split(":", 1) if ":" in state else (None, state)   # a plain folder: a run's own
     os.makedirs(out, exist_ok=True)
-    wanted = [f"mlp-{t}-{s}" for t in run_all.TASKS for s in run_all.SPACES]
     if commit is None:
         for name in wanted:
             shutil.copytree(os.path.join(path, "policies", name), os.path.join(out, "policies", name),
@@ -68,16 +68,22 @@ def prepare(run_folder: str, state: str, out: str) -> None:
                 os.makedirs(os.path.dirname(dst), exist_ok=True)
                 with open(dst, "wb") as fh:
                     fh.write(git_show(f"{commit}:{path}/policies/{name}/{f}"))
-    res = json.load(open(os.path.join(run_folder, "results.json")))
-    write_json(os.path.join(out, "stages", "ges.json"), {"stage": "ges", "result": res["stages"]["ges"]})
-    write_json(os.path.join(out, "manifest.json"), res["manifest"])
-    for name in wanted:   # the copied e2e MLP must be the committed one (same weights)
+    for name in wanted:   # the copied policy must be the committed one (same weights)
         a = run_all.ppo.load_checkpoint(os.path.join(out, "policies", name, "policy_best.pt"))
         b = run_all.ppo.load_checkpoint(os.path.join(run_folder, "policies", name, "policy_best.pt"))
         same = all(np.array_equal(a["policy"][k].numpy(), b["policy"][k].numpy()) for k in b["policy"])
         if not same or a["steps"] != b["steps"]:
             raise SystemExit(f"{name}: the checkpoint at {state} is not the committed one")
         print(f"{name}: {a['steps']:,} steps, optimiser state {'optimizer' in a}")
+
+
+def prepare(run_folder: str, state: str, out: str) -> None:
+    """The e2e MLPs with optimiser state from `state` (commit:folder or commit:file.tar) and the run's manifest and
+    GES stage from its results.json, into `out`."""
+    extract_policies(run_folder, state, out, [f"mlp-{t}-{s}" for t in run_all.TASKS for s in run_all.SPACES])
+    res = json.load(open(os.path.join(run_folder, "results.json")))
+    write_json(os.path.join(out, "stages", "ges.json"), {"stage": "ges", "result": res["stages"]["ges"]})
+    write_json(os.path.join(out, "manifest.json"), res["manifest"])
 
 
 def run(out: str, workers: int) -> None:
