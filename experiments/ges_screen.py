@@ -36,6 +36,7 @@ from experiments import args as cli_args  # noqa: E402
 from experiments.step_matched import fmt, prepare as copy_warm_starts  # noqa: E402
 from runkit.cli import override  # noqa: E402
 from runkit.files import read_json, write_json  # noqa: E402
+from runkit.progress import say  # noqa: E402
 from runkit.stats import paired_comparison  # noqa: E402
 
 CELLS = ("obstacle-d2", "obstacle-d3")   # the issue's screen cells: the obstacle, where GES's lead is open
@@ -138,8 +139,10 @@ def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
                                   for x in range(res.rounds + 1)) if os.path.exists(c)]
             sampler = ges.GaussianSampler(res.mu_unit[k], res.sigma_unit[k], res.space)
             designs = sampler(np.random.default_rng(policies.derive_seed(r.seed, "pick", t, s, k)), n)
-            best.append(int(np.argmax([np.mean(J(k, c, designs)) for c in rounds])))
+            js = [float(np.mean(J(k, c, designs))) for c in rounds]
+            best.append(int(np.argmax(js)))
             ckpt.append(rounds[best[-1]])
+            say(f"pick {lever} {t}-{s} specialist {i}: rounds' J {', '.join(f'{j:.1f}' for j in js)} -> round {best[-1]}")
         picked = replace(res, ckpt=ckpt)
         theta = r.test_designs(t, s)
         key = f"{run_all.score_key(r, t, s, 'ges')}-picked"
