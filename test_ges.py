@@ -3924,10 +3924,19 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
     assert os.path.exists(os.path.join(work, "tie", "scores", f"{key}.json"))
     assert ges_screen.main(["run", work, "--lever", "x", "--set", "ges_first_round_steps=96", "--reuse-round0"]) == 2
     assert ges_screen.main(["run", work, "--lever", "tie", "--set", "probe_tiebreak=true"]) == 2   # not reused now
+    # --matched: a lever with more steps gets its own step-matched e2e MLP at those steps, beside the run's policies
+    assert ges_screen.main(["run", work, "--lever", "long", "--set", "ges_round_steps=96", "--reuse-round0",
+                            "--matched", "--workers", "1"]) == 0
+    p = replace(run_all.SMOKE, ges_round_steps=96)
+    warm = ppo.load_checkpoint(os.path.join(work, "policies", "mlp-obstacle-d2", "policy_best.pt"))["steps"]
+    own = os.path.join(work, "long", "policies", f"{run_all.MATCHED}-obstacle-d2", "policy.pt")
+    assert ppo.load_checkpoint(own)["steps"] >= warm + p.ges_steps(p.ges_max_rounds)
+    assert not os.path.exists(os.path.join(work, "policies", f"{run_all.MATCHED}-obstacle-d2", "policy.pt"))
     assert ges_screen.main(["run", work, "--lever", "final", "--set", "probe_tiebreak=true"]) == 2
     assert "name another lever" in capsys.readouterr().err
     assert ges_screen.main(["table", work]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 3 |")]
-    assert len(rows) == 5 and "run + pick" in rows[0] and "same + pick" in rows[2]
+    assert len(rows) == 6 and "run + pick" in rows[0] and "same + pick" in rows[2]
     assert "ges_final_train=true" in rows[3] and "probe_tiebreak=true; round 0 the run's" in rows[4]
+    assert "ges_round_steps=96; round 0 the run's; step-matched at its steps" in rows[5]
     assert all(r.count("p=") == 3 for r in rows)

@@ -3,7 +3,7 @@
     python -m experiments.ges_screen prepare docs/overnight/seed0 --state 9eb76ac:docs/overnight/seed0/state \
         --ges-runs ~/runs/terr/seed0 --out ~/runs/screen/seed0
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true --reuse-round0
-    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever steps2m --set ges_first_round_steps=1400000
+    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever long --set ges_round_steps=700000 --reuse-round0 --matched
     python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final     # --lever run: the run's own GES
     python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
 
@@ -87,10 +87,12 @@ def reuse_round0(work: str, folder: str, r) -> None:
                 shutil.copy(os.path.join(src, f), os.path.join(dst, f))
 
 
-def run(work: str, lever: str, sets: list, workers: int, round0: bool = False) -> None:
+def run(work: str, lever: str, sets: list, workers: int, round0: bool = False, matched: bool = False) -> None:
     """One lever: GES on the screen's cells with the run's preset and `sets` overrides, warm-started from the
     run's e2e MLPs, then its test scores. In <work>/<lever>/, resumable. `round0`: from the run's own round 0
-    (reuse_round0), for levers that change only AFTER_ROUND0 fields."""
+    (reuse_round0), for levers that change only AFTER_ROUND0 fields. `matched`: also the step-matched e2e MLP at
+    this lever's steps per specialist (run_all's stage), for levers that change them; the table then compares
+    the lever's GES with it instead of the run's."""
     if lever == RUN:
         raise cli_args.BadArg(f"--lever {RUN}: the run's own GES (pick's); name this lever otherwise")
     screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
@@ -109,8 +111,7 @@ def run(work: str, lever: str, sets: list, workers: int, round0: bool = False) -
     write_json(os.path.join(work, "screen.json"), screen)
     folder = os.path.join(work, lever)
     os.makedirs(folder, exist_ok=True)
-    if not os.path.exists(os.path.join(folder, "policies")):
-        os.symlink(os.path.abspath(os.path.join(work, "policies")), os.path.join(folder, "policies"))
+    link_policies(work, folder, matched)
     shutil.copy(os.path.join(work, "manifest.json"), os.path.join(folder, "manifest.json"))
     r = replace(base, out=folder, preset=preset, workers=workers)
     if round0:
@@ -118,6 +119,22 @@ def run(work: str, lever: str, sets: list, workers: int, round0: bool = False) -
     run_all.run_stage(r, "ges")
     jobs = [run_all.ScoreSet(folder, preset, r.seed, t, s, "ges", r.main_ges(t, s)) for t, s in r.cells()]
     run_all.score_sets(r, jobs, f"lever {lever}: GES on the test designs")
+    if matched:
+        run_all.run_stage(r, "matched")
+
+
+def link_policies(work: str, folder: str, matched: bool) -> None:
+    """The lever's policies/: the run's, linked (one link per policy, so the lever's own step-matched e2e MLPs
+    train beside them and never over the run's); a folder linked whole by older code is kept unless `matched`."""
+    mine = os.path.join(folder, "policies")
+    if os.path.islink(mine):
+        if matched:
+            raise cli_args.BadArg(f"{mine} links the run's policies whole: --matched needs a lever of its own")
+        return
+    os.makedirs(mine, exist_ok=True)
+    for name in sorted(os.listdir(os.path.join(work, "policies"))):
+        if not name.startswith(run_all.MATCHED) and not os.path.lexists(os.path.join(mine, name)):
+            os.symlink(os.path.abspath(os.path.join(work, "policies", name)), os.path.join(mine, name))
 
 
 def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
@@ -183,10 +200,13 @@ def table(works: list) -> str:
                     g = scores(r.out, run_all.score_key(r, t, s, "ges") + suffix)
                     if g is None:
                         continue
-                    others = [scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
+                    own = scores(r.out, run_all.score_key(r, t, s, run_all.MATCHED)) if lever != RUN else None
+                    others = [own if m == run_all.MATCHED and own is not None else
+                              scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
                     cols = [fmt(paired_comparison(g, o)) if o is not None else "-" for o in others]
                     how = ", ".join(sets) or "as run"
                     how += "; round 0 the run's" if lever in screen.get("round0_reused", []) else ""
+                    how += "; step-matched at its steps" if own is not None else ""
                     lines.append(f"| {base.seed} | {lever}{' + pick' if suffix else ''} ({how}) "
                                  f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(preset.ges_max_rounds)):,} "
                                  f"| {g.mean():.1f} | " + " | ".join(cols) + " |")
@@ -208,6 +228,7 @@ def main(argv=None) -> int:
     p.add_argument("--lever", required=True, help="the lever's name (its folder)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="run_all's preset overrides")
     p.add_argument("--reuse-round0", action="store_true", help="start from the run's own round-0 specialists")
+    p.add_argument("--matched", action="store_true", help="also the step-matched e2e MLP at this lever's steps")
     cli_args.add_workers(p)
     p = cli_args.command(sub, "pick", "after a lever: each specialist's policy picked across rounds, then J", __doc__)
     p.add_argument("work")
@@ -223,7 +244,7 @@ def main(argv=None) -> int:
             prepare(a.run_folder, a.state, os.path.expanduser(a.out), a.ges_runs and os.path.expanduser(a.ges_runs),
                     tuple(c for c in a.cells.split(",") if c), a.workers)
         elif a.cmd == "run":
-            run(os.path.expanduser(a.work), a.lever, a.set, a.workers, a.reuse_round0)
+            run(os.path.expanduser(a.work), a.lever, a.set, a.workers, a.reuse_round0, a.matched)
         elif a.cmd == "pick":
             print(pick(os.path.expanduser(a.work), a.lever, a.designs, a.workers))
         else:
