@@ -3,7 +3,7 @@
     python -m experiments.ges_screen prepare docs/overnight/seed0 --state 9eb76ac:docs/overnight/seed0/state \
         --ges-runs ~/runs/terr/seed0 --out ~/runs/screen/seed0
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true --reuse-round0
-    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever long --set ges_round_steps=700000 --reuse-round0 --matched
+    python -m experiments.ges_screen run ~/runs/screen/seed0 --lever long --set ges_round_steps=540000 --reuse-round0 --matched
     python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final     # --lever run: the run's own GES
     python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
 
