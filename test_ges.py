@@ -3893,8 +3893,8 @@ def test_rerun_reuses_the_runs_baseline_policies(smoke_run, tmp_path, capsys):
 def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_path, capsys):
     """experiments/ges_screen.py on a finished run: prepare scores the e2e MLP, the step-matched one and the run's
     GES; a lever (--set) reruns GES from the run's e2e MLPs on the screen's cells, and its table row compares them
-    paired. The lever 'as run' reproduces the run's own GES scores, and pick on it the pick on the run's GES; a lever
-    renamed with other values is refused."""
+    paired, and split gives its specialists' routed designs. The lever 'as run' reproduces the run's own GES scores,
+    and pick on it the pick on the run's GES; a lever renamed with other values is refused."""
     from experiments import ges_screen
     work = str(tmp_path / "w")
     assert ges_screen.main(["prepare", smoke_run, "--state", smoke_run, "--ges-runs", smoke_run, "--out", work,
@@ -3906,6 +3906,8 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
         read_json(os.path.join(smoke_run, "scores", f"{key}.json"))["scores"]
     ckpt = read_json(os.path.join(work, "final", "ges", "obstacle-d2-K3-fps-lloyd", "state.json"))["ckpt"]
     assert ckpt[0].endswith(f"round{run_all.SMOKE.ges_max_rounds:02d}.ckpt")   # the final training's
+    rows = [r.split(" | ") for r in ges_screen.split(work, "final").splitlines()[2:]]   # one row per specialist
+    assert [r[2] for r in rows] == ["0", "1", "2"] and sum(int(r[3]) for r in rows) == run_all.SMOKE.n_test
     picked = ges_screen.pick(work, "same", n=2)   # each specialist's policy chosen across its rounds
     assert len(picked["obstacle-d2"]) == 3 and all(0 <= b < run_all.SMOKE.ges_max_rounds for b in picked["obstacle-d2"])
     assert ges_screen.pick(work, "run", n=2) == picked   # the run's own GES (the lever "same" reproduces it)

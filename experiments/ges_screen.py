@@ -5,6 +5,7 @@
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever final --set ges_final_train=true --reuse-round0
     python -m experiments.ges_screen run ~/runs/screen/seed0 --lever long --set ges_round_steps=540000 --reuse-round0 --matched
     python -m experiments.ges_screen pick ~/runs/screen/seed0 --lever final     # --lever run: the run's own GES
+    python -m experiments.ges_screen split ~/runs/screen/seed1 --lever final   # per specialist, routed test designs
     python -m experiments.ges_screen table ~/runs/screen/seed0 ~/runs/screen/seed1 --out docs/ges_schedule/screen.md
 
 One fixed protocol for every lever [ours, issue 95]: the run's own e2e MLPs (with optimiser state, from its resume
@@ -213,6 +214,31 @@ def table(works: list) -> str:
     return "\n".join(lines) + "\n"
 
 
+def split(work: str, lever: str) -> str:
+    """Per specialist of a lever: the test designs the lever's router (eq. 10) hands it, and J there of the lever's
+    GES, the run's own GES, the step-matched e2e MLP (the lever's own if it trained one) and the e2e MLP: which
+    specialist and territory hold GES back. The run's GES routes by its own territories, which differ where the
+    lever refit them."""
+    screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
+    if lever != RUN and lever not in screen["levers"]:
+        raise cli_args.BadArg(f"--lever {lever}: not run here; one of {', '.join([RUN, *screen['levers']])}")
+    r = replace(base, out=lever_folder(work, lever),
+                preset=lever_preset(base.preset, screen["levers"].get(lever, []), screen["cells"]))
+    lines = ["| seed | cell | specialist | designs | GES (lever) | run's GES | step-matched | e2e MLP |", "|---" * 8 + "|"]
+    for t, s in r.cells():
+        res = policies.load_ges(r.path("ges", r.main_ges(t, s)))
+        route = res.route(r.test_designs(t, s))
+        own = scores(r.out, run_all.score_key(r, t, s, run_all.MATCHED))
+        got = [scores(r.out, run_all.score_key(r, t, s, "ges")), scores(work, run_all.score_key(base, t, s, "ges")),
+               own if own is not None else scores(work, run_all.score_key(base, t, s, run_all.MATCHED)),
+               scores(work, run_all.score_key(base, t, s, "mlp"))]
+        for k in range(len(res.ckpt)):
+            i = route == k
+            cols = [f"{g[i].mean():.1f}" if g is not None and i.any() else "-" for g in got]
+            lines.append(f"| {base.seed} | {t} {s.upper()} | {k} | {int(i.sum())} | " + " | ".join(cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = cli_args.program("python -m experiments.ges_screen", __doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -235,6 +261,9 @@ def main(argv=None) -> int:
     p.add_argument("--lever", required=True)
     p.add_argument("--designs", type=cli_args.positive, default=12, help="designs of each final territory (12)")
     cli_args.add_workers(p)
+    p = cli_args.command(sub, "split", "a lever's J per specialist, on the test designs it is routed", __doc__)
+    p.add_argument("work")
+    p.add_argument("--lever", required=True)
     p = cli_args.command(sub, "table", "every lever against the e2e MLP, step-matched and the run's GES", __doc__)
     p.add_argument("works", nargs="+")
     p.add_argument("--out", help="also write the table to this Markdown file")
@@ -247,6 +276,8 @@ def main(argv=None) -> int:
             run(os.path.expanduser(a.work), a.lever, a.set, a.workers, a.reuse_round0, a.matched)
         elif a.cmd == "pick":
             print(pick(os.path.expanduser(a.work), a.lever, a.designs, a.workers))
+        elif a.cmd == "split":
+            sys.stdout.write(split(os.path.expanduser(a.work), a.lever))
         else:
             text = table([os.path.expanduser(w) for w in a.works])
             if a.out:
