@@ -188,7 +188,7 @@ def scores(folder: str, key: str) -> np.ndarray | None:
 
 def table(works: list) -> str:
     """Per seed, lever and cell: GES's mean J and its paired difference to the e2e MLP, the step-matched e2e MLP
-    and the run's own GES (as scored at prepare), with each lever's steps per specialist at its round cap."""
+    and the run's own GES (as scored at prepare), with each lever's steps per specialist (the rounds its GES ran)."""
     lines = ["| seed | lever | cell | steps per specialist | GES | GES - e2e MLP | GES - step-matched | "
              "GES - run's GES |", "|---" * 8 + "|"]
     for work in works:
@@ -208,8 +208,9 @@ def table(works: list) -> str:
                     how = ", ".join(sets) or "as run"
                     how += "; round 0 the run's" if lever in screen.get("round0_reused", []) else ""
                     how += "; step-matched at its steps" if own is not None else ""
+                    rounds = policies.load_ges(r.path("ges", r.main_ges(t, s))).rounds   # coverage may stop it early
                     lines.append(f"| {base.seed} | {lever}{' + pick' if suffix else ''} ({how}) "
-                                 f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(preset.ges_max_rounds)):,} "
+                                 f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(rounds)):,} "
                                  f"| {g.mean():.1f} | " + " | ".join(cols) + " |")
     return "\n".join(lines) + "\n"
 
