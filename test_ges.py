@@ -2699,16 +2699,18 @@ def test_run_all_set_overrides_a_budget_kept_and_checked_by_name(tmp_path, capsy
     value is refused naming the budget; a bad field or value is a one-line error that writes nothing."""
     out, base = str(tmp_path / "r"), ["--preset", "smoke", "--workers", "1", "--only", "table1"]
     assert run_all.main(base + ["--out", out, "--set", "n_test=2", "--set", "ksens_K=1,2,3",
-                                "--set", "probe_level_steps=none"]) == 0
+                                "--set", "probe_level_steps=none", "--set", "ges_target_coverage=0.5"]) == 0
     man = json.load(open(os.path.join(out, "manifest.json")))
     assert man["budgets"]["n_test"] == 2 and man["budgets"]["ksens_K"] == [1, 2, 3]
-    assert man["overrides"] == {"n_test": 2, "ksens_K": [1, 2, 3], "probe_level_steps": None}
+    assert man["overrides"] == {"n_test": 2, "ksens_K": [1, 2, 3], "probe_level_steps": None,
+                                "ges_target_coverage": 0.5}   # a fraction (was refused as < 1)
     assert "n_test=2" in open(os.path.join(out, "REPORT.md")).read()
     capsys.readouterr()
     assert run_all.main(base + ["--out", out, "--set", "n_test=3"]) == 2
     assert "budget n_test (2 there, 3 now)" in capsys.readouterr().err
     for bad, words in (("nope=1", "FIELD one of"), ("n_test=abc", "not a value of type int"),
-                       ("n_test=0", "must be >= 1"), ("ges_warm_start=maybe", "type bool")):
+                       ("n_test=0", "must be >= 1"), ("ges_warm_start=maybe", "type bool"),
+                       ("ges_target_coverage=1.5", "must be in [0, 1]")):
         assert run_all.main(base + ["--out", str(tmp_path / "bad"), "--set", bad]) == 2
         assert words in capsys.readouterr().err and not (tmp_path / "bad").exists()
     monkeypatch.setattr(cli, "calibrate", lambda job, ex, workers, batch: ex.shutdown() or {

@@ -147,7 +147,9 @@ def override(preset, items: list):
                 value = {"int": int, "float": float, "str": str}[kind.split()[0]](text.replace("_", ""))
         except (ValueError, KeyError):
             raise BadInput(f"--set {name}={text!r}: not a value of type {kind}") from None
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and value < (0 if "level" in name else 1):
+        if isinstance(value, float) and not 0 <= value <= 1:   # the preset's float fields are fractions
+            raise BadInput(f"--set {name}={text}: must be in [0, 1]")
+        if isinstance(value, int) and not isinstance(value, bool) and value < (0 if "level" in name else 1):
             raise BadInput(f"--set {name}={text}: must be >= {0 if 'level' in name else 1}")
         changes[name] = value
     return replace(preset, **changes), changes
