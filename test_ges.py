@@ -3938,9 +3938,16 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
     assert not os.path.exists(os.path.join(work, "policies", f"{run_all.MATCHED}-obstacle-d2", "policy.pt"))
     assert ges_screen.main(["run", work, "--lever", "final", "--set", "probe_tiebreak=true"]) == 2
     assert "name another lever" in capsys.readouterr().err
+    # a GES stopped on coverage before its round cap: the table counts the steps of the rounds it ran
+    assert ges_screen.main(["run", work, "--lever", "cov", "--set", "ges_target_coverage=0.01", "--reuse-round0",
+                            "--workers", "1"]) == 0
+    capsys.readouterr()
     assert ges_screen.main(["table", work]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| 3 |")]
-    assert len(rows) == 6 and "run + pick" in rows[0] and "same + pick" in rows[2]
+    cap = run_all.SMOKE.ges_steps(run_all.SMOKE.ges_trained(run_all.SMOKE.ges_max_rounds))
+    assert "ges_target_coverage=0.01" in rows[6] and int(rows[6].split(" | ")[3].replace(",", "")) < cap
+    rows = rows[:6]
+    assert "run + pick" in rows[0] and "same + pick" in rows[2]
     assert "ges_final_train=true" in rows[3] and "probe_tiebreak=true; round 0 the run's" in rows[4]
     assert "ges_round_steps=96; round 0 the run's; step-matched at its steps" in rows[5]
     assert all(r.count("p=") == 3 for r in rows)

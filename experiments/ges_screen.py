@@ -143,12 +143,7 @@ def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
     rounds by J on `n` designs of its final territory (a later round on a grown territory may serve its designs
     worse: docs/ges_schedule, territories), then the test designs routed (eq. 10) and scored with the chosen
     policies: score set test-<cell>-ges-picked. Returns cell -> each specialist's chosen round."""
-    screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
-    if lever != RUN and lever not in screen["levers"]:
-        raise cli_args.BadArg(f"--lever {lever}: not run yet; one of {', '.join([RUN, *screen['levers']])}")
-    r = replace(base, out=lever_folder(work, lever), workers=workers,
-                preset=lever_preset(base.preset, screen["levers"].get(lever, []), screen["cells"]))
-    chosen = {}
+    r, chosen = lever_run(work, lever, workers), {}
     for t, s in r.cells():
         res, space = policies.load_ges(r.path("ges", r.main_ges(t, s))), policies.space_of(r.preset, t, s)
         J, best, ckpt = policies.ScoreSpecialist(t, space, r.preset, workers), [], []
@@ -181,6 +176,25 @@ def lever_preset(preset, sets: list, cells):
     return replace(override(preset, sets)[0], cells=tuple(cells))
 
 
+def lever_run(work: str, lever: str, workers: int = 1) -> run_all.Run:
+    """A lever already run here (or "run", the run's own GES) as run_all sees it: its folder, the run's preset
+    with the lever's --set overrides, the run's seed."""
+    screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
+    if lever != RUN and lever not in screen["levers"]:
+        raise cli_args.BadArg(f"--lever {lever}: not run yet; one of {', '.join([RUN, *screen['levers']])}")
+    return replace(base, out=lever_folder(work, lever), workers=workers,
+                   preset=lever_preset(base.preset, screen["levers"].get(lever, []), screen["cells"]))
+
+
+def compared(work: str, r: run_all.Run, t: str, s: str) -> tuple[list, bool]:
+    """What a lever's GES is compared with on cell (t, s), as BASES orders them: the e2e MLP, the step-matched
+    e2e MLP (the lever's own if it trained one at its steps: True) and the run's own GES, scored at prepare."""
+    own = scores(r.out, run_all.score_key(r, t, s, run_all.MATCHED)) if r.out != work else None
+    base = base_run(work)   # the run's own keys (a lever may change K, and so its GES's name)
+    return [own if m == run_all.MATCHED and own is not None else scores(work, run_all.score_key(base, t, s, m))
+            for m in BASES], own is not None
+
+
 def scores(folder: str, key: str) -> np.ndarray | None:
     path = os.path.join(folder, "scores", f"{key}.json")
     return np.array(read_json(path)["scores"]) if os.path.exists(path) else None
@@ -192,26 +206,24 @@ def table(works: list) -> str:
     lines = ["| seed | lever | cell | steps per specialist | GES | GES - e2e MLP | GES - step-matched | "
              "GES - run's GES |", "|---" * 8 + "|"]
     for work in works:
-        screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
+        screen = read_json(os.path.join(work, "screen.json"))
         for lever, sets in [(RUN, []), *screen["levers"].items()]:
-            preset = lever_preset(base.preset, sets, screen["cells"])
-            r = replace(base, out=lever_folder(work, lever), preset=preset)
+            r = lever_run(work, lever)
             for t, s in r.cells():
+                (others, own), steps = compared(work, r, t, s), None
                 for suffix in ("-picked",) if lever == RUN else ("", "-picked"):   # the lever, then picked (pick)
                     g = scores(r.out, run_all.score_key(r, t, s, "ges") + suffix)
                     if g is None:
                         continue
-                    own = scores(r.out, run_all.score_key(r, t, s, run_all.MATCHED)) if lever != RUN else None
-                    others = [own if m == run_all.MATCHED and own is not None else
-                              scores(work, run_all.score_key(base, t, s, m)) for m in BASES]
+                    if steps is None:   # the rounds its GES ran: coverage may stop it before the cap
+                        rounds = policies.load_ges(r.path("ges", r.main_ges(t, s))).rounds
+                        steps = r.preset.ges_steps(r.preset.ges_trained(rounds))
                     cols = [fmt(paired_comparison(g, o)) if o is not None else "-" for o in others]
                     how = ", ".join(sets) or "as run"
                     how += "; round 0 the run's" if lever in screen.get("round0_reused", []) else ""
-                    how += "; step-matched at its steps" if own is not None else ""
-                    rounds = policies.load_ges(r.path("ges", r.main_ges(t, s))).rounds   # coverage may stop it early
-                    lines.append(f"| {base.seed} | {lever}{' + pick' if suffix else ''} ({how}) "
-                                 f"| {t} {s.upper()} | {preset.ges_steps(preset.ges_trained(rounds)):,} "
-                                 f"| {g.mean():.1f} | " + " | ".join(cols) + " |")
+                    how += "; step-matched at its steps" if own else ""
+                    lines.append(f"| {r.seed} | {lever}{' + pick' if suffix else ''} ({how}) "
+                                 f"| {t} {s.upper()} | {steps:,} | {g.mean():.1f} | " + " | ".join(cols) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -220,23 +232,17 @@ def split(work: str, lever: str) -> str:
     GES, the run's own GES, the step-matched e2e MLP (the lever's own if it trained one) and the e2e MLP: which
     specialist and territory hold GES back. The run's GES routes by its own territories, which differ where the
     lever refit them."""
-    screen, base = read_json(os.path.join(work, "screen.json")), base_run(work)
-    if lever != RUN and lever not in screen["levers"]:
-        raise cli_args.BadArg(f"--lever {lever}: not run here; one of {', '.join([RUN, *screen['levers']])}")
-    r = replace(base, out=lever_folder(work, lever),
-                preset=lever_preset(base.preset, screen["levers"].get(lever, []), screen["cells"]))
+    r = lever_run(work, lever)
     lines = ["| seed | cell | specialist | designs | GES (lever) | run's GES | step-matched | e2e MLP |", "|---" * 8 + "|"]
     for t, s in r.cells():
         res = policies.load_ges(r.path("ges", r.main_ges(t, s)))
         route = res.route(r.test_designs(t, s))
-        own = scores(r.out, run_all.score_key(r, t, s, run_all.MATCHED))
-        got = [scores(r.out, run_all.score_key(r, t, s, "ges")), scores(work, run_all.score_key(base, t, s, "ges")),
-               own if own is not None else scores(work, run_all.score_key(base, t, s, run_all.MATCHED)),
-               scores(work, run_all.score_key(base, t, s, "mlp"))]
+        (mlp, matched, run_ges), _ = compared(work, r, t, s)
+        got = [scores(r.out, run_all.score_key(r, t, s, "ges")), run_ges, matched, mlp]
         for k in range(len(res.ckpt)):
             i = route == k
             cols = [f"{g[i].mean():.1f}" if g is not None and i.any() else "-" for g in got]
-            lines.append(f"| {base.seed} | {t} {s.upper()} | {k} | {int(i.sum())} | " + " | ".join(cols) + " |")
+            lines.append(f"| {r.seed} | {t} {s.upper()} | {k} | {int(i.sum())} | " + " | ".join(cols) + " |")
     return "\n".join(lines) + "\n"
 
 
