@@ -501,6 +501,11 @@ def _check_config(c: GESConfig) -> None:
 STATE_FILE, HISTORY_FILE, CKPT_DIR = "state.json", "history.json", "ckpt"
 
 
+def ckpt_path(i: int, t: int) -> str:
+    """Specialist i's round-t checkpoint, relative to run_dir: the one name its trainer writes and readers find."""
+    return os.path.join(CKPT_DIR, f"spec{i}_round{t:02d}.ckpt")
+
+
 def _atomic_json(path: str, obj) -> None:
     """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state [ours]."""
     tmp = f"{path}.tmp{os.getpid()}"
@@ -623,9 +628,9 @@ def _map_all(executor: Executor, fn: Callable, arg_lists: list) -> tuple[list, l
 
 def train_all(executor, train_fn, run_dir, t, ids, samplers, ckpt_in) -> tuple[list, list]:
     """Round t's training tasks: specialist ids[k] from its checkpoint ckpt_in[k] (None in round 0) on
-    samplers[k], writing ckpt/spec{id}_round{t}.ckpt. Returns those paths (relative to run_dir) and each task's
+    samplers[k], writing ckpt_path(id, t). Returns those paths (relative to run_dir) and each task's
     seconds."""
-    ckpt = [os.path.join(CKPT_DIR, f"spec{i}_round{t:02d}.ckpt") for i in ids]
+    ckpt = [ckpt_path(i, t) for i in ids]
     _, seconds = _map_all(executor, train_fn, [(i, t, s, os.path.join(run_dir, c) if c else None,
                                                 os.path.join(run_dir, out))
                                                for i, s, c, out in zip(ids, samplers, ckpt_in, ckpt)])

@@ -148,7 +148,7 @@ def pick(work: str, lever: str, n: int = 12, workers: int = 1) -> dict:
         res, space = policies.load_ges(r.path("ges", r.main_ges(t, s))), policies.space_of(r.preset, t, s)
         J, best, ckpt = policies.ScoreSpecialist(t, space, r.preset, workers), [], []
         for k, i in enumerate(res.ids):   # every round's checkpoint of specialist i (a final training's too)
-            rounds = [c for c in (os.path.join(res.run_dir, ges.CKPT_DIR, f"spec{i}_round{x:02d}.ckpt")
+            rounds = [c for c in (os.path.join(res.run_dir, ges.ckpt_path(i, x))
                                   for x in range(res.rounds + 1)) if os.path.exists(c)]
             sampler = ges.GaussianSampler(res.mu_unit[k], res.sigma_unit[k], res.space)
             designs = sampler(np.random.default_rng(policies.derive_seed(r.seed, "pick", t, s, k)), n)
