@@ -68,7 +68,7 @@ def specialist(task, sp, preset, mlp_ckpt, mu, sigma, box, k, seed, rounds, fold
                                       mlp_ckpt)
     ckpt_in = None
     for r in range(rounds):
-        out = os.path.join(folder, f"spec{k}_round{r:02d}.ckpt")
+        out = os.path.join(folder, os.path.basename(ges.ckpt_path(k, r)))
         if not os.path.exists(out):
             s = ges.seed_for(seed, 1, r, k)
             trainer(k, r, Uniform(box, s) if uniform else ges.GaussianSampler(mu, sigma, box, s), ckpt_in, out)

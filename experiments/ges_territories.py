@@ -30,6 +30,8 @@ import numpy as np
 HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, HERE)
 
+import ges  # noqa: E402
+import ppo  # noqa: E402
 from codesign import policies  # noqa: E402
 import run_all  # noqa: E402
 from experiments.step_matched import git_show  # noqa: E402
@@ -84,7 +86,7 @@ def jobs_of(run_folder: str, terr: str, matched: str, cells: list, n: int) -> li
             for which, entry in (("r0", hist[0]), ("final", hist[-1])):
                 theta = territory_designs(entry, k, space, n, zlib.crc32(f"{seed}{cell}{k}{which}".encode()))
                 full = space.full(theta).tolist()
-                pols = {f"round{r}": os.path.join(terr, "ges", MAIN[cell], "ckpt", f"spec{k}_round{r:02d}_best.ckpt")
+                pols = {f"round{r}": ppo.best_path(os.path.join(terr, "ges", MAIN[cell], ges.ckpt_path(k, r)))
                         for r in range(rounds)}
                 pols["mlp"] = os.path.join(run_folder, "policies", f"mlp-{cell}", "policy_best.pt")
                 pols["matched"] = os.path.join(matched, "policies", f"mlp_matched-{cell}", "policy_best.pt")
