@@ -3316,16 +3316,20 @@ def test_run_all_plan_calibrates_once_where_the_run_goes(tmp_path, capsys, monke
                 "seconds": 1.0, "time": "now", "cpu": "test CPU", "batch": list(batch)}
 
     monkeypatch.setattr(cli, "calibrate", fake)
+    monkeypatch.setattr(cli.os, "getloadavg", lambda: (0.1, 0.1, 0.1))   # an idle machine: no warning
     out = str(tmp_path / "q")
     assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "1"]) == 0
     text = capsys.readouterr().out
     assert f"at {plan.TRAINED_SHARE * 444:.0f} PPO / 333 score" in text and "calibrated on test CPU" in text, text
+    assert "warning: load" not in text
     assert os.listdir(out) == [plan.CALIBRATION_FILE] and calls == [1]
     hours = float(re.search(r"total +([\d.]+) h", text).group(1))
     slow = plan.plan(run_all.QUICK, run_all.LAYOUT, 1, plan.TRAINED_SHARE * 444.0, 333.0)
     assert hours == pytest.approx(sum(v["hours"] for v in slow.values()), abs=0.006)
     assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "1"]) == 0 and calls == [1]
+    monkeypatch.setattr(cli.os, "getloadavg", lambda: (1.7, 1.0, 1.0))   # busy: the plan says it will run long
     assert run_all.main(["--preset", "quick", "--plan", "--out", out, "--workers", "2"]) == 0 and calls == [1, 2]
+    assert "warning: load average 1.7" in capsys.readouterr().out
     manifest = {"results_format": 0, "preset": "quick", "budgets": {}, "seed": 0, "code_hash": "x"}
     assert check_output(out, manifest, fresh=False) is False   # only a calibration: not a run yet
     open_output(out, manifest, reuse=False)

@@ -114,6 +114,10 @@ def calibration(run, rate_job=None) -> dict | None:
         return cal
     check_ours(run.out)   # somebody else's folder is refused before anything is written
     say(f"calibrating the plan's rates on this machine: {run.workers} job(s) side by side, < 60 s")
+    load = os.getloadavg()[0]   # [ours] a calibration beside other work plans the run long, and is kept
+    if load >= 0.5:
+        say(f"warning: load average {load:.1f} on {os.cpu_count()} cores before calibrating: other work shares "
+            f"the CPU, so the plan will run long; to measure again on an idle machine, delete {path}")
     job = functools.partial(rate_job, preset=run.preset, steps=CALIBRATION_STEPS, n_designs=1)
     cal = calibrate(job, replace(run, stop_by=None).pool(), run.workers, batch)
     os.makedirs(run.out, exist_ok=True)
