@@ -3954,4 +3954,7 @@ def test_ges_screen_runs_a_lever_against_the_runs_own_policies(smoke_run, tmp_pa
     assert "run + pick" in rows[0] and "same + pick" in rows[2]
     assert "ges_final_train=true" in rows[3] and "probe_tiebreak=true; round 0 the run's" in rows[4]
     assert "ges_round_steps=96; round 0 the run's; step-matched at its steps" in rows[5]
-    assert all(r.count("p=") == 3 for r in rows)
+    assert [r.count("p=") for r in rows] == [4, 3, 3, 4, 4, 4] and rows[1].endswith("| - |")   # `same` not on itself
+    final, same = (np.array(read_json(os.path.join(work, lv, "scores", f"{key}.json"))["scores"])
+                   for lv in ("final", "same"))
+    assert rows[3].endswith(f"| {ges_screen.fmt(rstats.paired_comparison(final, same))} |")   # its own effect

@@ -43,6 +43,7 @@ from runkit.stats import paired_comparison  # noqa: E402
 CELLS = ("obstacle-d2", "obstacle-d3")   # the issue's screen cells: the obstacle, where GES's lead is open
 BASES = ("mlp", run_all.MATCHED, "ges")   # what every lever is compared with, scored at prepare
 RUN = "run"   # the lever name of the run's own GES: `pick --lever run` picks its specialists' rounds
+SAME = "same"   # the lever that reruns the run's schedule here, from its round 0: a lever's own effect is against it
 
 
 def base_run(work: str, workers: int = 1, preset=None) -> run_all.Run:
@@ -188,11 +189,16 @@ def lever_run(work: str, lever: str, workers: int = 1) -> run_all.Run:
 
 def compared(work: str, r: run_all.Run, t: str, s: str) -> tuple[list, bool]:
     """What a lever's GES is compared with on cell (t, s), as BASES orders them: the e2e MLP, the step-matched
-    e2e MLP (the lever's own if it trained one at its steps: True) and the run's own GES, scored at prepare."""
+    e2e MLP (the lever's own if it trained one at its steps: True) and the run's own GES, scored at prepare; then
+    lever `same`'s GES where it ran (else the run's; none for `same` itself)."""
     own = scores(r.out, run_all.score_key(r, t, s, run_all.MATCHED)) if r.out != work else None
     base = base_run(work)   # the run's own keys (a lever may change K, and so its GES's name)
-    return [own if m == run_all.MATCHED and own is not None else scores(work, run_all.score_key(base, t, s, m))
-            for m in BASES], own is not None
+    found = [own if m == run_all.MATCHED and own is not None else scores(work, run_all.score_key(base, t, s, m))
+             for m in BASES]
+    same = scores(lever_folder(work, SAME), run_all.score_key(base, t, s, "ges")) if r.out != work else None
+    if r.out == lever_folder(work, SAME):
+        return found + [None], own is not None
+    return found + [same if same is not None else found[-1]], own is not None
 
 
 def scores(folder: str, key: str) -> np.ndarray | None:
@@ -201,10 +207,12 @@ def scores(folder: str, key: str) -> np.ndarray | None:
 
 
 def table(works: list) -> str:
-    """Per seed, lever and cell: GES's mean J and its paired difference to the e2e MLP, the step-matched e2e MLP
-    and the run's own GES (as scored at prepare), with each lever's steps per specialist (the rounds its GES ran)."""
+    """Per seed, lever and cell: GES's mean J and its paired difference to the e2e MLP, the step-matched e2e MLP,
+    the run's own GES (as scored at prepare) and the run's schedule rerun here (lever `same`: the lever's own
+    effect; without it the run's GES, which a rerun on the run's CPU model repeats byte for byte), with each
+    lever's steps per specialist (the rounds its GES ran)."""
     lines = ["| seed | lever | cell | steps per specialist | GES | GES - e2e MLP | GES - step-matched | "
-             "GES - run's GES |", "|---" * 8 + "|"]
+             "GES - run's GES | GES - `same` |", "|---" * 9 + "|"]
     for work in works:
         screen = read_json(os.path.join(work, "screen.json"))
         for lever, sets in [(RUN, []), *screen["levers"].items()]:
@@ -229,16 +237,17 @@ def table(works: list) -> str:
 
 def split(work: str, lever: str) -> str:
     """Per specialist of a lever: the test designs the lever's router (eq. 10) hands it, and J there of the lever's
-    GES, the run's own GES, the step-matched e2e MLP (the lever's own if it trained one) and the e2e MLP: which
-    specialist and territory hold GES back. The run's GES routes by its own territories, which differ where the
+    GES, the run's own GES, lever `same`'s (as `compared`), the step-matched e2e MLP (the lever's own if it trained
+    one) and the e2e MLP: which specialist and territory hold GES back. The run's GES routes by its own territories, which differ where the
     lever refit them."""
     r = lever_run(work, lever)
-    lines = ["| seed | cell | specialist | designs | GES (lever) | run's GES | step-matched | e2e MLP |", "|---" * 8 + "|"]
+    lines = ["| seed | cell | specialist | designs | GES (lever) | run's GES | `same` | step-matched | e2e MLP |",
+             "|---" * 9 + "|"]
     for t, s in r.cells():
         res = policies.load_ges(r.path("ges", r.main_ges(t, s)))
         route = res.route(r.test_designs(t, s))
-        (mlp, matched, run_ges), _ = compared(work, r, t, s)
-        got = [scores(r.out, run_all.score_key(r, t, s, "ges")), run_ges, matched, mlp]
+        (mlp, matched, run_ges, same), _ = compared(work, r, t, s)
+        got = [scores(r.out, run_all.score_key(r, t, s, "ges")), run_ges, same, matched, mlp]
         for k in range(len(res.ckpt)):
             i = route == k
             cols = [f"{g[i].mean():.1f}" if g is not None and i.any() else "-" for g in got]
