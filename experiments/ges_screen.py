@@ -195,9 +195,9 @@ def compared(work: str, r: run_all.Run, t: str, s: str) -> tuple[list, bool]:
     base = base_run(work)   # the run's own keys (a lever may change K, and so its GES's name)
     found = [own if m == run_all.MATCHED and own is not None else scores(work, run_all.score_key(base, t, s, m))
              for m in BASES]
-    same = scores(lever_folder(work, SAME), run_all.score_key(base, t, s, "ges")) if r.out != work else None
     if r.out == lever_folder(work, SAME):
         return found + [None], own is not None
+    same = scores(lever_folder(work, SAME), run_all.score_key(base, t, s, "ges")) if r.out != work else None
     return found + [same if same is not None else found[-1]], own is not None
 
 
@@ -238,8 +238,8 @@ def table(works: list) -> str:
 def split(work: str, lever: str) -> str:
     """Per specialist of a lever: the test designs the lever's router (eq. 10) hands it, and J there of the lever's
     GES, the run's own GES, lever `same`'s (as `compared`), the step-matched e2e MLP (the lever's own if it trained
-    one) and the e2e MLP: which specialist and territory hold GES back. The run's GES routes by its own territories, which differ where the
-    lever refit them."""
+    one) and the e2e MLP: which specialist and territory hold GES back. The run's GES routes by its own
+    territories, which differ where the lever refit them."""
     r = lever_run(work, lever)
     lines = ["| seed | cell | specialist | designs | GES (lever) | run's GES | `same` | step-matched | e2e MLP |",
              "|---" * 9 + "|"]
