@@ -36,7 +36,7 @@ import os
 import sys
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -224,6 +224,15 @@ PRESETS = {p.name: p for p in (SMOKE, QUICK, OVERNIGHT, PAPER)}
 # what every run is made of besides its budgets, counted for --plan (runkit.plan)
 LAYOUT = Layout(tasks=len(TASKS), spaces=len(SPACES), e2e=len(E2E), methods=len(METHODS), searched=len(SEARCHED),
                 episode_steps=ballu.BalluConfig().episode_steps)
+
+
+def recorded_preset(manifest: dict) -> Preset:
+    """The preset a run ran with, from its manifest's budgets. A field added since takes the Preset class's
+    default, which is what code before the field did (a lever off), not today's preset value."""
+    if not manifest.get("budgets"):
+        return PRESETS[manifest["preset"]]
+    known = {f.name for f in fields(Preset)}
+    return Preset(**{k: tuple(v) if isinstance(v, list) else v for k, v in manifest["budgets"].items() if k in known})
 
 
 # ----------------------------------------------------------------------------------------------------------

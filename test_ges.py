@@ -2694,6 +2694,18 @@ def test_run_all_probe_tiebreak_orders_only_ties():
     assert not run_all.OVERNIGHT.probe_tiebreak and not run_all.OVERNIGHT.ges_final_train   # levers: off
 
 
+def test_run_all_recorded_preset_is_the_preset_a_run_ran_with():
+    """A committed run's manifest gives the budgets it ran with; a field added since is the class's default (the
+    behaviour before it), not today's preset value: the overnight runs trained no final round, and the oldest
+    overnight run's round 0 trained ges_round_steps (before ges_first_round_steps)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    man = lambda p: json.load(open(os.path.join(here, p, "results.json")))["manifest"]   # noqa: E731
+    seed0 = run_all.recorded_preset(man("docs/overnight/seed0"))
+    assert seed0 == replace(run_all.OVERNIGHT, ges_final_train=False)
+    assert run_all.recorded_preset(man("docs/archive/paper_obs/overnight")).ges_first_round_steps is None
+    assert run_all.recorded_preset({"preset": "quick"}) == run_all.QUICK   # no budgets recorded: the preset's
+
+
 def test_run_all_set_overrides_a_budget_kept_and_checked_by_name(tmp_path, capsys, monkeypatch):
     """--set FIELD=VALUE changes the preset (typed by the field), the plan and the manifest; a rerun with another
     value is refused naming the budget; a bad field or value is a one-line error that writes nothing."""
@@ -2708,6 +2720,13 @@ def test_run_all_set_overrides_a_budget_kept_and_checked_by_name(tmp_path, capsy
     capsys.readouterr()
     assert run_all.main(base + ["--out", out, "--set", "n_test=3"]) == 2
     assert "budget n_test (2 there, 3 now)" in capsys.readouterr().err
+    del man["budgets"]["probe_tiebreak"]   # a folder made before the field: it ran with the class default (off)
+    json.dump(man, open(os.path.join(out, "manifest.json"), "w"))
+    keep = base + ["--out", out, "--set", "n_test=2", "--set", "ksens_K=1,2,3", "--set", "probe_level_steps=none",
+                   "--set", "ges_target_coverage=0.5"]
+    assert run_all.main(keep + ["--set", "probe_tiebreak=true"]) == 2
+    assert "budget probe_tiebreak (False there, True now)" in capsys.readouterr().err
+    assert run_all.main(keep) == 0
     for bad, words in (("nope=1", "FIELD one of"), ("n_test=abc", "not a value of type int"),
                        ("n_test=0", "must be >= 1"), ("ges_warm_start=maybe", "type bool"),
                        ("ges_target_coverage=1.5", "must be in [0, 1]")):

@@ -48,7 +48,7 @@ SAME = "same"   # the lever that reruns the run's schedule here, from its round 
 
 def base_run(work: str, workers: int = 1, preset=None) -> run_all.Run:
     man = read_json(os.path.join(work, "manifest.json"))
-    return run_all.Run(work, preset or run_all.PRESETS[man["preset"]], int(man["seed"]), workers)
+    return run_all.Run(work, preset or run_all.recorded_preset(man), int(man["seed"]), workers)
 
 
 def prepare(run_folder: str, state: str, out: str, ges_runs: str | None, cells: tuple, workers: int) -> None:

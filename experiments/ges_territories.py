@@ -75,7 +75,7 @@ def J_job(key: str, ckpt: str, task: str, designs_full: list, preset_name: str, 
 
 def jobs_of(run_folder: str, terr: str, matched: str, cells: list, n: int) -> list:
     man = read_json(os.path.join(run_folder, "results.json"))["manifest"]
-    preset, seed = run_all.PRESETS[man["preset"]], int(man["seed"])
+    preset, seed = run_all.recorded_preset(man), int(man["seed"])
     jobs = []
     for cell in cells:
         task, sp = cell.split("-")

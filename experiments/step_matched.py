@@ -88,7 +88,7 @@ def prepare(run_folder: str, state: str, out: str) -> None:
 
 def run(out: str, workers: int) -> None:
     man = json.load(open(os.path.join(out, "manifest.json")))
-    r = run_all.Run(out, run_all.PRESETS[man["preset"]], int(man["seed"]), workers)
+    r = run_all.Run(out, run_all.recorded_preset(man), int(man["seed"]), workers)
     run_all.run_stage(r, "matched")
 
 
@@ -99,7 +99,7 @@ def rescore(work: str, ges_runs: str, workers: int) -> None:
     if not os.path.exists(os.path.join(work, "ges")):
         os.symlink(os.path.abspath(os.path.join(ges_runs, "ges")), os.path.join(work, "ges"))
     man = json.load(open(os.path.join(work, "manifest.json")))
-    r = run_all.Run(work, run_all.PRESETS[man["preset"]], int(man["seed"]), workers)
+    r = run_all.Run(work, run_all.recorded_preset(man), int(man["seed"]), workers)
     jobs = [run_all.ScoreSet(work, r.preset, r.seed, t, s, m, r.main_ges(t, s) if m == "ges" else None)
             for t in run_all.TASKS for s in run_all.SPACES for m in ("mlp", "ges")]
     run_all.score_sets(r, jobs, "score sets on this machine")
@@ -134,7 +134,7 @@ def cell_rows(run_folder: str, work: str) -> list:
     kept = os.path.join(work, "matched.json")   # a folder `keep` wrote, or the work folder itself
     matched = json.load(open(kept if os.path.exists(kept) else os.path.join(work, "stages", "matched.json")))["result"]
     man = json.load(open(os.path.join(run_folder, "results.json")))["manifest"]
-    r = run_all.Run(work, run_all.PRESETS[man["preset"]], int(man["seed"]), 1)
+    r = run_all.Run(work, run_all.recorded_preset(man), int(man["seed"]), 1)
     out = []
     for t in run_all.TASKS:
         for s in run_all.SPACES:

@@ -112,7 +112,7 @@ def run_above(path: str) -> str | None:
 
 def run_of(folder: str, workers: int = 2):
     """run_all.Run of an output folder: the preset its manifest names (manifest.json of a live run, results.json's
-    of a committed one) with the budgets it recorded (a field added since keeps today's default)."""
+    of a committed one) with the budgets it recorded (run_all.recorded_preset)."""
     path = next((os.path.join(folder, f) for f in RUN_FILES if os.path.isfile(os.path.join(folder, f))), None)
     if path is None:
         raise UseError(f"{folder}: not a run_all output folder (no manifest.json or results.json)")
@@ -120,9 +120,7 @@ def run_of(folder: str, workers: int = 2):
     man = man.get("manifest", man)
     if man.get("preset") not in run_all.PRESETS:
         raise UseError(f"{path}: unknown preset {man.get('preset')!r} (known: {', '.join(run_all.PRESETS)})")
-    known = {f.name for f in fields(run_all.Preset)}
-    budgets = {k: tuple(v) if isinstance(v, list) else v for k, v in man.get("budgets", {}).items() if k in known}
-    return run_all.Run(folder, replace(run_all.PRESETS[man["preset"]], **budgets), int(man.get("seed", 0)), workers)
+    return run_all.Run(folder, run_all.recorded_preset(man), int(man.get("seed", 0)), workers)
 
 
 def load_ges(run_dir: str, preset) -> ges.GESResult:

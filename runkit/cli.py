@@ -11,7 +11,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import MISSING, asdict, dataclass, fields, replace
 from typing import Callable
 
 from runkit.clock import StageClock, stage_times
@@ -260,7 +260,8 @@ def main(argv, exp: Experiment) -> int:
                     **({"overrides": json.loads(json.dumps(overrides))} if overrides else {}),
                     "code_hash": code_hash(exp.home, exp.numbers, exp.results_format),
                     "git_commit": git_commit(exp.home), "created": time.strftime("%Y-%m-%d %H:%M:%S")}
-        reuse = check_output(out, manifest, args.fresh)
+        defaults = json.loads(json.dumps({f.name: f.default for f in fields(preset) if f.default is not MISSING}))
+        reuse = check_output(out, manifest, args.fresh, defaults)
         check_needs(out, stages, exp, reuse)
         manifest = open_output(out, manifest, reuse)
         run = exp.Run(out, preset, args.seed, args.workers, args.executor, args.scheduler, stop_by)

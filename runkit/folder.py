@@ -44,10 +44,10 @@ def check_ours(out: str) -> bool:
     return True
 
 
-def check_output(out: str, manifest: dict, fresh: bool) -> bool:
+def check_output(out: str, manifest: dict, fresh: bool, defaults: dict | None = None) -> bool:
     """Read-only check of the output folder; True if it holds this very run (reuse its finished work).
     Refuses a non-empty folder that is not ours, and one made by another preset / budgets / seed / code
-    version unless --fresh."""
+    version unless --fresh. A budget the folder's older code did not have ran as its `defaults` value."""
     mpath = os.path.join(out, "manifest.json")
     if not check_ours(out):
         return False
@@ -56,9 +56,9 @@ def check_output(out: str, manifest: dict, fresh: bool) -> bool:
     old = read_back(mpath, lambda p: dict(read_json(p)), fix=f"{FRESH} or choose another --out")
     keys = ("results_format", "preset", "seed", "code_hash")
     diff = [f"{k} ({old.get(k)!r} there, {manifest[k]!r} now)" for k in keys if old.get(k) != manifest[k]]
-    was, now = old.get("budgets") or {}, manifest["budgets"]
+    was, now = {**(defaults or {}), **(old.get("budgets") or {})}, manifest["budgets"]
     diff += [f"budget {k} ({was[k]!r} there, {now[k]!r} now)" for k in now if k in was and was[k] != now[k]]
-    if diff:   # a budget a folder's older code did not have is the default it ran with
+    if diff:
         raise BadInput(f"{out} holds results of a different " + ", ".join(diff)
                        + "; rerun with --fresh to start over or choose another --out")
     return not fresh
