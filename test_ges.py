@@ -2691,7 +2691,8 @@ def test_run_all_probe_tiebreak_orders_only_ties():
     np.testing.assert_allclose(policies.tiebreak(full, trace), [1.5e-3, -4.75e-3, 1e-2])
     steps = np.diff(ballu.level_score("ramp", np.arange(ballu.MAX_LEVEL + 1)))
     assert 2 * np.abs(policies.tiebreak(full, trace)).max() < steps.min()
-    assert not run_all.OVERNIGHT.probe_tiebreak and not run_all.OVERNIGHT.ges_final_train   # levers: off
+    assert not run_all.OVERNIGHT.probe_tiebreak and not run_all.Preset.ges_final_train   # levers: off by default
+    assert run_all.OVERNIGHT.ges_final_train   # adopted (docs/ges_schedule)
 
 
 def test_run_all_recorded_preset_is_the_preset_a_run_ran_with():

@@ -73,6 +73,8 @@ def report_header(p, seed: int, commit: str, manifest: dict) -> list:
             + (f"{p.ges_first_round_steps:,} steps per specialist in round 0 (facts: the authors' first round is "
                "3.2x the later ones), then " if p.ges_first_round_steps is not None else "")
             + f"{p.ges_round_steps:,} steps per specialist per round, <= {p.ges_max_rounds} rounds, "
+            + ("then one more round on the final territories (ours, docs/ges_schedule), " if p.ges_final_train else "")
+            + ("probe ties broken by the mean final x (ours), " if p.probe_tiebreak else "")
             + ("specialists start from their cell's e2e MLP (ours, to fit the budget; paper: random init), "
                if p.ges_warm_start else "") +
             f"F = {p.ges_probes} probes of {p.ges_probe_pool}, {p.ges_init_designs} seed designs per territory "
