@@ -5,7 +5,8 @@
 set -e
 : "${SEED:?}"
 OUT=~/runs/overnight-s$SEED; KEEP=/work/main/docs/overnight/rerun-s$SEED; LOG=~/runs/rerun/s$SEED.log
-cd $OUT && find . -type f -newer .prepared ! -name '*.damaged' | sort > /tmp/delta$SEED.txt
+cd $OUT && { ls ./calibration.json ./manifest.json; find . -type f -newer .prepared ! -name '*.damaged'; } | sort -u > /tmp/delta$SEED.txt
+# calibration.json and manifest.json come from experiments.rerun itself: keep the first attempt's, which --plan used
 tar -czf $KEEP/state.tgz -T /tmp/delta$SEED.txt
 [ -f $LOG ] && cat $LOG >> $KEEP/run_all.log && mv $LOG $LOG.saved
 echo "$(wc -l < /tmp/delta$SEED.txt) files, $(du -h $KEEP/state.tgz | cut -f1)"
