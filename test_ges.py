@@ -3240,7 +3240,8 @@ def test_runkit_eta_against_schedules_with_known_answers(capsys):
     """One formula for every ETA: on a schedule whose units take the same time, each user's ETA is exact.
     Units of 10 s one at a time: 3 done in 30 s, 7 left -> 70 s. A PPO update of 64 steps in 1 s with 3,840
     steps left -> 1.0 min. The whole run: a stage that ran 10x its plan of 10,000 s makes the next stage's
-    plan of 5,000 s take ~10x (the 60 s prior pulls the pace toward 1 by < 1 %)."""
+    plan of 5,000 s take ~10x (the 60 s prior pulls the pace toward 1 by < 1 %); one that ran 2 s of its plan found
+    its work done (a rerun's copied baselines) and leaves the pace at 1."""
     assert progress.eta_s(30.0, 3, 7) == pytest.approx(70.0) and progress.eta_s(0.0, 0, 7) is None
     lines = []
     log = ppo.TrainLog(None, lines.append, "mlp", 64 * 61)
@@ -3251,6 +3252,8 @@ def test_runkit_eta_against_schedules_with_known_answers(capsys):
     text = progress.run_eta({"a": 10_000.0, "b": 5_000.0}, {"a": 100_000.0}, ["b"])
     eta = float(re.match(r"whole run: eta (\d+)s", text).group(1))
     assert 49_500 < eta < 50_000 and "x 9.9" in text, text
+    reused = progress.run_eta({"a": 10_000.0, "b": 5_000.0}, {"a": 2.0}, ["b"])   # a stage that found its work done
+    assert reused.startswith("whole run: eta 5000s") and reused.endswith("--plan's time"), reused
 
 
 def test_runkit_progress_round_eta_paces_later_rounds_by_their_own_size():

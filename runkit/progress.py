@@ -5,6 +5,7 @@ import time
 
 LOADED_S = 5.0       # [ours] a unit done this soon after the start (or the previous such unit) was loaded, not run
 ETA_PRIOR_S = 60.0   # [ours] the run's pace starts at 1 as if this much had run to plan: a stage of seconds says little
+FOUND_DONE = 0.05    # [ours] a stage that ran in under this share of its plan found its work done (a rerun's baselines)
 
 
 def eta_s(elapsed: float, done: float, left: float, parallel: int = 1) -> float | None:
@@ -60,8 +61,10 @@ def run_eta(planned: dict, ran: dict, left: list, spent: dict | None = None) -> 
     """The whole run's ETA: the planned seconds of the stages `left` at the pace so far (the recorded seconds of
     the stages `ran` per planned second, both with ETA_PRIOR_S of planned time added, so a pace of 1 at the
     start), less the `spent` seconds earlier attempts already put into a stage left (a resumed run).
-    Skipped stages count for neither."""
+    Skipped stages count for neither, nor does a stage that found its work done (under FOUND_DONE of its plan:
+    experiments.rerun's copied baselines, 2 s of a 1.7 h plan, would set a pace of 0.01)."""
     spent = spent or {}
+    ran = {s: t for s, t in ran.items() if t >= FOUND_DONE * planned.get(s, 0.0)}
     done_plan = sum(planned.get(s, 0.0) for s in ran)
     ran_s, done_s = sum(ran.values()) + ETA_PRIOR_S, done_plan + ETA_PRIOR_S
     eta = sum(max(0.0, eta_s(ran_s, done_s, planned.get(s, 0.0)) - spent.get(s, 0.0)) for s in left)
