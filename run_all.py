@@ -604,7 +604,8 @@ def ges_runs(run: Run, specs: list, label: str) -> dict:
     round (a rerun resumes every run). With one worker (jobs run inline) the runs go one by one."""
     with run.pool() as ex:
         jobs = {ges_name(*sp): functools.partial(ges_run, run, *sp, ex) for sp in specs}
-        return side_by_side(jobs, Progress(label, len(specs), every=0), isinstance(ex, ges.SerialExecutor))
+        serial = isinstance(ex, ges.SerialExecutor)   # runs side by side: the first to end paces them all
+        return side_by_side(jobs, Progress(label, len(specs), every=0, parallel=1 if serial else len(specs)), serial)
 
 
 # --- score sets of the test designs -------------------------------------------------------------------------
