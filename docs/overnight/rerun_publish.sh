@@ -3,7 +3,7 @@
 #   SEED=0|1 docs/overnight/rerun_publish.sh      # then write seedN/RUN.md from rerun-sN/RUN.md and commit
 # Copied: the report, results, test scores, calibration, stage times, figures; the scored policies (each
 # policy_best.pt and every GES run's final best windows, optimiser state dropped: load with ppo.load_policy) with
-# their training logs and each GES run's history.json. Moved (one home each): rerun-sN's run_all.log.
+# their training logs and each GES run's history.json. Moved (one home each): rerun-sN's run_all.log, the last attempt's log appended.
 set -e
 : "${SEED:?}"
 OUT=~/runs/overnight-s$SEED; DOC=/work/main/docs/overnight/seed$SEED; KEEP=/work/main/docs/overnight/rerun-s$SEED
@@ -11,7 +11,8 @@ grep -q '"figures"' $OUT/stage_seconds.json || { echo "$OUT has not finished (no
 git -C /work/main rm -rq --ignore-unmatch docs/overnight/seed$SEED && rm -rf $DOC && mkdir -p $DOC
 cp $OUT/{REPORT.md,results.json,test_scores.csv,calibration.json,stage_seconds.json} $DOC/
 cp -r $OUT/figures $DOC/figures
-git -C /work/main mv docs/overnight/rerun-s$SEED/run_all.log docs/overnight/seed$SEED/run_all.log
+git -C /work/main mv docs/overnight/rerun-s$SEED/run_all.log $DOC/run_all.log
+LOG=~/runs/rerun/s$SEED.log; [ -f $LOG ] && cat $LOG >> $DOC/run_all.log && mv $LOG $LOG.saved   # the last attempt's
 cd /work/main && python - $OUT $DOC <<'PY'
 import glob, json, os, shutil, sys, torch
 out, doc = sys.argv[1:]
@@ -25,6 +26,8 @@ def strip(src, dst):
 
 for d in sorted(glob.glob(os.path.join(out, "policies", "*", ""))):
     name = os.path.basename(d.rstrip("/"))
+    if not os.path.exists(os.path.join(d, "policy_best.pt")):
+        continue                                  # policies/bo: the cost stage's BO trials, not a scored policy
     strip(os.path.join(d, "policy_best.pt"), os.path.join(doc, "policies", name, "policy_best.pt"))
     shutil.copy(os.path.join(d, "log.csv"), os.path.join(doc, "policies", name, "log.csv"))
 for run in sorted(glob.glob(os.path.join(out, "ges", "*", "state.json"))):
