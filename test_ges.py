@@ -2697,13 +2697,13 @@ def test_run_all_probe_tiebreak_orders_only_ties():
 
 def test_run_all_recorded_preset_is_the_preset_a_run_ran_with():
     """A committed run's manifest gives the budgets it ran with; a field added since is the class's default (the
-    behaviour before it), not today's preset value: the overnight runs trained no final round, and the oldest
-    overnight run's round 0 trained ges_round_steps (before ges_first_round_steps)."""
+    behaviour before it), not today's preset value: the oldest overnight run trained no final round, and its round 0
+    trained ges_round_steps (before ges_first_round_steps)."""
     here = os.path.dirname(os.path.abspath(__file__))
     man = lambda p: json.load(open(os.path.join(here, p, "results.json")))["manifest"]   # noqa: E731
-    seed0 = run_all.recorded_preset(man("docs/overnight/seed0"))
-    assert seed0 == replace(run_all.OVERNIGHT, ges_final_train=False)
-    assert run_all.recorded_preset(man("docs/archive/paper_obs/overnight")).ges_first_round_steps is None
+    assert run_all.recorded_preset(man("docs/overnight/seed0")) == run_all.OVERNIGHT   # rerun on today's schedule
+    old = run_all.recorded_preset(man("docs/archive/paper_obs/overnight"))
+    assert old.ges_first_round_steps is None and not old.ges_final_train
     assert run_all.recorded_preset({"preset": "quick"}) == run_all.QUICK   # no budgets recorded: the preset's
 
 
