@@ -3,7 +3,8 @@
 #   SEED=0|1 docs/overnight/rerun_publish.sh      # then write seedN/RUN.md from rerun-sN/RUN.md and commit
 # Copied: the report, results, test scores, calibration, stage times, figures; the scored policies (each
 # policy_best.pt and every GES run's final best windows, optimiser state dropped: load with ppo.load_policy) with
-# their training logs and each GES run's history.json. Moved (one home each): rerun-sN's run_all.log, the last attempt's log appended.
+# their training logs and each GES run's history.json. Moved (one home each): rerun-sN's run_all.log, with the
+# last attempt's log (~/runs/rerun/sN.log, which rerun_save.sh appends after an unfinished attempt) appended.
 set -e
 : "${SEED:?}"
 OUT=~/runs/overnight-s$SEED; DOC=/work/main/docs/overnight/seed$SEED; KEEP=/work/main/docs/overnight/rerun-s$SEED
