@@ -2701,7 +2701,8 @@ def test_run_all_recorded_preset_is_the_preset_a_run_ran_with():
     trained ges_round_steps (before ges_first_round_steps)."""
     here = os.path.dirname(os.path.abspath(__file__))
     man = lambda p: json.load(open(os.path.join(here, p, "results.json")))["manifest"]   # noqa: E731
-    assert run_all.recorded_preset(man("docs/overnight/seed0")) == run_all.OVERNIGHT   # rerun on today's schedule
+    for seed in ("seed0", "seed1"):   # both reruns on today's schedule
+        assert run_all.recorded_preset(man(f"docs/overnight/{seed}")) == run_all.OVERNIGHT, seed
     old = run_all.recorded_preset(man("docs/archive/paper_obs/overnight"))
     assert old.ges_first_round_steps is None and not old.ges_final_train
     assert run_all.recorded_preset({"preset": "quick"}) == run_all.QUICK   # no budgets recorded: the preset's
