@@ -284,6 +284,10 @@ class BalluConfig:
     # [ours] lanes per PyBullet world, all at one spot. One: each world picks its own substeps, so a lane's
     # trajectory never depends on world-mates; as fast as stacking (docs/speed; the sweep: python ballu.py bench).
     lanes_per_world: int = 1
+    # [ours, an option] the obstacle curriculum's strict rule: an episode ending short of `up` goes down a level,
+    # where the facts' rule keeps the level between `down` and `up` (the stay band: a robot pressed against the box
+    # face keeps its level; docs/stay_band). For training envs; `score(strict=)` sets the score's rule.
+    strict: bool = False
     # [ours] episodes a training lane keeps a sampled design (the authors: the whole run [facts]); docs/ppo_protocol
     design_hold: int = 1
     # [facts, an option] a lane's first training episode starts at a random step of its 20 s (rsl_rl's
@@ -472,12 +476,34 @@ def level_score(task: str, level):
     return 100.0 * h if task == "obstacle" else np.degrees(np.arctan(h / 1.5))
 
 
-def curriculum_update(task: str, level, final_x, step=1):
-    """Up one level past `up`, down one short of `down`, clipped to 0..74. [facts]  `step` (a scalar or one per
-    lane) moves that many levels instead: score's bisection schedule (`level_steps`) uses it. [ours]"""
-    g = task_geometry(task)
-    move = (np.asarray(final_x) > g["up"]).astype(np.int64) - (np.asarray(final_x) < g["down"])
+def curriculum_update(task: str, level, final_x, step=1, strict: bool = False):
+    """Up one level past `up`, down one short of `down`, clipped to 0..74 [facts]; between the two (the stay band)
+    the level stays. `strict` [ours, obstacle only]: down one short of `up`, so only clearing keeps a level.
+    `step` (a scalar or one per lane) moves that many levels instead: score's bisection schedule (`level_steps`)
+    uses it. [ours]"""
+    g, x = task_geometry(check_strict(task, strict)), np.asarray(final_x)
+    up = x > g["up"]
+    move = up.astype(np.int64) - (~up if strict else x < g["down"])
     return np.clip(np.asarray(level) + np.asarray(step) * move, 0, MAX_LEVEL)
+
+
+def check_strict(task: str, strict) -> str:
+    """The strict rule is the obstacle's: its band is a robot at the box, where the ramp's is a robot on the slope."""
+    if not isinstance(strict, (bool, np.bool_)) or (strict and task != "obstacle"):
+        raise ValueError(f"strict={strict!r} for task={task!r}: True only for the obstacle (its stay band ends "
+                         f"at the box face), else False")
+    return task
+
+
+OUTCOMES = ("short", "band", "cleared")   # where an episode ends against the curriculum's thresholds
+
+
+def episode_outcome(task: str, final_x) -> np.ndarray:
+    """Each episode's end as an index of OUTCOMES: 0 short of `down`, 1 in the stay band between `down` and `up`
+    (the facts' rule keeps the level), 2 past `up` (obstacle: cleared the box); -1 a blown-up episode (NaN x)."""
+    g, x = task_geometry(task), np.asarray(final_x, dtype=float)
+    out = np.where(x > g["up"], 2, np.where(x < g["down"], 0, 1))
+    return np.where(np.isfinite(x), out, -1)
 
 
 def surface_height(task: str, x, level):
@@ -749,6 +775,7 @@ def check_config(cfg: BalluConfig):
         raise ValueError(f"action_smoothing={cfg.action_smoothing!r} must lie in [0, 1)")
     if cfg.obs not in OBS_FORMS:
         raise ValueError(f"obs={cfg.obs!r} is not one of {tuple(OBS_FORMS)}")
+    check_strict(cfg.task, cfg.strict)
     if cfg.reward_form not in ("paper", "code"):
         raise ValueError(f"reward_form={cfg.reward_form!r} is not one of ('paper', 'code')")
     if not isinstance(cfg.warmup_steps, (int, np.integer)) or isinstance(cfg.warmup_steps, bool) \
@@ -961,7 +988,7 @@ class BalluEnv(_ExactResume):
                 "episode_level": self.levels.copy(), "blowup": blowup}
         if done.any():
             if self.curriculum and (warm is None or not warm[0]):   # a blown-up episode does not move the level
-                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]), self.level_step)
+                moved = curriculum_update(task, self.levels, np.nan_to_num(pos[:, 0]), self.level_step, cfg.strict)
                 self.levels = np.where(truncated, moved, self.levels)
             for i in np.flatnonzero(done):
                 if blowup[i]:
@@ -1203,7 +1230,7 @@ def check_level_steps(level_steps, episodes: int | None) -> np.ndarray:
 
 def score(policy, designs, task: str = "obstacle", episodes: int | None = None, start_level: int | None = None,
           workers: int = 1, cfg: BalluConfig | None = None, progress=None, final_x: bool = False,
-          level_steps=None, reuse: bool | None = None, stats: dict | None = None):
+          level_steps=None, reuse: bool | None = None, stats: dict | None = None, strict: bool = False):
     """J(policy, design, task) for many designs at once: one lane per design, curriculum from the start level.
 
     The policy (any picklable callable obs (n, OBS_DIM) -> action (n, 2); deterministic for a learned policy;
@@ -1214,7 +1241,9 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     Each design gets a PyBullet world of its own [ours]: a lane's trajectory can depend on its world-mates once
     robots touch the box, and J must depend neither on the designs sharing its call nor on the worker count (for
     a policy evaluated row by row, as ppo.PolicyFn is). `final_x`: also each episode's final pelvis x
-    (n, episodes) in m (NaN for a blown-up episode).
+    (n, episodes) in m (NaN for a blown-up episode); `episode_outcome` reads them as short, stay band or cleared.
+    `strict` [ours, obstacle only]: the score's curriculum moves down on every episode that does not clear
+    (curriculum_update), whatever rule the policy trained with.
 
     `level_steps` (e.g. (16, 8, 4, 2, 1, 1, 1)) [ours]: a bisection over levels, episode e moving level_steps[e]
     levels; halving steps near the level where the policy starts failing in ~log2(range) episodes, where the unit
@@ -1228,7 +1257,7 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
     stepping: J and every final x as playing every episode (test). `stats` (a dict) receives "episodes_played".
     """
     cfg = replace(policy_config(policy, task, cfg), lanes_per_world=1,   # one world per design (above)
-                  random_first_episode=False)                            # J plays whole episodes
+                  random_first_episode=False, strict=strict)            # J plays whole episodes
     d = check_design(designs, what="designs")
     start = SCORE_START_LEVEL[task] if start_level is None else start_level
     steps = check_level_steps(level_steps, episodes)

@@ -147,6 +147,11 @@ class Preset:
     # by the episodes' mean final x
     ges_final_train: bool = False
     probe_tiebreak: bool = False
+    # [ours, options] the obstacle's strict curriculum rule (ballu.curriculum_update): an episode ending short of
+    # the box's far half goes down, where the facts keep the level in the stay band (docs/stay_band). score_strict:
+    # every obstacle J (tables, probes, test designs); train_strict: the obstacle's training curriculum
+    score_strict: bool = False
+    train_strict: bool = False
 
     def __post_init__(self):
         bad = [c for c in self.cells if c not in CELLS]
@@ -164,8 +169,14 @@ class Preset:
         return rounds + int(self.ges_final_train)
 
     def env_config(self, cfg: ballu.BalluConfig) -> ballu.BalluConfig:
-        """`cfg` with this preset's episode length: the one home of what a run's envs change from the defaults."""
+        """`cfg` with this preset's episode length and, for obstacle training, its curriculum rule: the one home
+        of what a run's envs change from the defaults (a score sets its own rule: score_rule)."""
+        cfg = replace(cfg, strict=self.train_strict and cfg.task == "obstacle")
         return cfg if self.episode_steps is None else replace(cfg, episode_steps=self.episode_steps)
+
+    def score_rule(self, task: str) -> bool:
+        """Whether J on `task` moves down on every episode that does not clear (score_strict, obstacle only)."""
+        return self.score_strict and task == "obstacle"
 
     def ges_auto_K(self) -> int:
         """Adaptive K's start and cap (ksens_auto): ksens_auto_K, else the larger of the paper's two K."""

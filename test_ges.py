@@ -356,6 +356,27 @@ def test_ballu_curriculum_rule():
     assert list(ballu.curriculum_update("ramp", [40, 40, 40], [1.71, 1.5, 1.29])) == [41, 40, 39]
     assert ballu.level_score("obstacle", 28) == pytest.approx(28.1)
     assert ballu.level_score("ramp", 40) == pytest.approx(math.degrees(math.atan(0.801 / 1.5)))
+    # strict [ours]: only clearing keeps a level; it is the obstacle's rule, asked of the ramp it is an error
+    assert list(ballu.curriculum_update("obstacle", [5, 5, 5, 0], [1.01, 0.7, 0.49, 0.7], strict=True)) == [6, 4, 4, 0]
+    for task, strict in (("ramp", True), ("obstacle", "yes")):
+        with pytest.raises(ValueError, match=r"strict=.*only for the obstacle"):
+            ballu.curriculum_update(task, [5], [1.0], strict=strict)
+    with pytest.raises(ValueError, match=r"strict=True for task='ramp'"):
+        ballu.BalluEnv(1, ballu.BalluConfig(task="ramp", strict=True))
+    assert ballu.episode_outcome("obstacle", [1.01, 0.7, 0.5, 0.49, np.nan]).tolist() == [2, 1, 1, 0, -1]
+    assert ballu.episode_outcome("ramp", [1.71, 1.5, 1.29]).tolist() == [2, 1, 0]
+
+
+def test_ballu_score_strict_moves_a_robot_in_the_band_down_each_episode(monkeypatch):
+    """A robot that stands in the stay band keeps J's start level under the facts' rule; under the strict rule
+    it goes down one level an episode. The band is moved to hold a standing robot (x ~ 0): the score's own path."""
+    plain = ballu.task_geometry
+    monkeypatch.setattr(ballu, "task_geometry", lambda task: {**plain(task), "down": -0.5})
+    cfg = ballu.BalluConfig(obs="paper", episode_steps=10)
+    j, x = ballu.score(ballu.stand, BASELINE[None], episodes=3, start_level=20, cfg=cfg, final_x=True)
+    assert np.all(np.abs(x) < 0.5) and j[0] == pytest.approx(ballu.level_score("obstacle", 20))
+    j = ballu.score(ballu.stand, BASELINE[None], episodes=3, start_level=20, cfg=cfg, strict=True)
+    assert j[0] == pytest.approx(ballu.level_score("obstacle", 17))
 
 
 @pytest.mark.slow
@@ -3716,6 +3737,7 @@ def test_use_resolve_policies():
     (["/nonexistent", "mlp", "obstacle-d2"], ["not a run_all output folder"]),
     ([os.path.join(QUICK_RUN, "policies", "mlp-ramp-d2", "policy.pt"), "obstacle-d2"], ["the ramp task", "not obstacle"]),
     (["/nonexistent.pt", "obstacle-d2"], ["does not exist"]),
+    ([QUICK_RUN, "mlp", "ramp-d2", "--rule", "strict"], ["--rule strict", "ramp"]),
 ])
 def test_use_bad_input_is_one_line(capsys, argv, words):
     code, out, err = use_main(capsys, "score", *argv, "--episodes", "1")
@@ -3760,8 +3782,20 @@ def test_use_score_command_writes_csv(tmp_path, capsys):
                              "baseline", "--episodes", "2", "--workers", "1", "--out", out)
     assert code == 0 and "J " in text and str(out) in text
     lines = out.read_text().splitlines()
-    assert lines[0].startswith("design,l_f,l_t,gcr,spcf,J_cm") and len(lines) == 3
+    assert lines[0].startswith("design,l_f,l_t,gcr,spcf,J_cm,rule,cleared,band,short,") and len(lines) == 3
     assert lines[2].startswith("baseline,0.45,0.45,0.7,0.002")
+    rows = list(csv_module.DictReader(out.read_text().splitlines()))
+    assert all(r["rule"] == "facts" and int(r["cleared"]) + int(r["band"]) + int(r["short"]) == 2 for r in rows)
+    assert "outcome" in text and "cleared" in text
+
+
+def test_use_score_strict_rule_is_ballu_score_strict():
+    t = use.resolve([QUICK_RUN, "mlp", "obstacle-d2"], workers=1)
+    d = use.design_arg("baseline", t.space)
+    row = use.score(t, [d], episodes=3, workers=1, rule="strict")[0]
+    j = ballu.score(ppo.load_policy(MLP_OBST), d.full, "obstacle", episodes=3, start_level=28, strict=True)
+    assert row["J"] == float(j[0]) and row["walk_ok"]
+    assert list(row["outcome"]) == list(ballu.episode_outcome("obstacle", row["x"]))
 
 
 # --- watch --------------------------------------------------------------------------------------------------

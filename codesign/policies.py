@@ -97,7 +97,7 @@ def score_policy(policy, designs_full, task, preset: Preset, workers: int = 1, l
                        start_level=preset.score_start_level, level_steps=steps,
                        cfg=preset.env_config(ballu.policy_config(policy, task)),
                        workers=max(1, min(workers, len(designs_full))), progress=Throttled(label) if label else None,
-                       final_x=True, stats=stats)
+                       final_x=True, stats=stats, strict=preset.score_rule(task))
     if trace is not None:
         trace.update({np.asarray(d, float).tobytes(): [float(v) if np.isfinite(v) else None for v in row]
                       for d, row in zip(designs_full, x)})

@@ -209,21 +209,32 @@ def play(t: Target, design: Design) -> tuple:
 # ----------------------------------------------------------------------------------------------------------
 # 3. score: J per design, as the run scores (policies.score_policy: its episodes, start level, episode length)
 # ----------------------------------------------------------------------------------------------------------
-def walk(task: str, start: int, xs: list) -> tuple:
-    """Each episode's level, replayed from the final x's by the curriculum's rule [facts] (ballu.curriculum_update;
-    x None, a blow-up, holds the level), and the level after the last: ballu.score returns only the final x. The
-    caller checks the last level against J (a blow-up at a finite x, past the speed limit, would differ)."""
+def walk(task: str, start: int, xs: list, strict: bool = False) -> tuple:
+    """Each episode's level, replayed from the final x's by the curriculum's rule (ballu.curriculum_update, the
+    facts' or the strict one; x None, a blow-up, holds the level), and the level after the last: ballu.score
+    returns only the final x. The caller checks the last level against J (a blow-up at a finite x, past the speed
+    limit, would differ)."""
     levels = [start]
     for x in xs:
-        levels.append(levels[-1] if x is None else int(ballu.curriculum_update(task, levels[-1], x)))
+        levels.append(levels[-1] if x is None else int(ballu.curriculum_update(task, levels[-1], x, strict=strict)))
     return levels[:-1], levels[-1]
 
 
-def score(t: Target, designs: list, episodes: int | None = None, workers: int = 2, label: str = "") -> list:
-    """A row per design: J as Table II scores (the preset's episodes unless `episodes`), each episode's level and
-    final x; for GES the routed specialist and its log density, each specialist's designs in one call (as
-    ges.RoutedEvaluator)."""
+OUTCOME_MARK = {-1: "-", 0: "s", 1: "b", 2: "C"}   # blown up, short, stay band, cleared (ballu.OUTCOMES)
+
+
+def outcomes(task: str, xs: list) -> np.ndarray:
+    """Each episode's end as ballu.episode_outcome reads it (-1 for a blow-up, x None)."""
+    return ballu.episode_outcome(task, [np.nan if x is None else x for x in xs])
+
+
+def score(t: Target, designs: list, episodes: int | None = None, workers: int = 2, label: str = "",
+          rule: str | None = None) -> list:
+    """A row per design: J as Table II scores (the preset's episodes unless `episodes`; its rule unless `rule`,
+    "facts" or "strict"), each episode's level, final x and outcome; for GES the routed specialist and its log
+    density, each specialist's designs in one call (as ges.RoutedEvaluator)."""
     preset = t.preset if episodes is None else replace(t.preset, score_episodes=episodes)
+    preset = preset if rule is None else replace(preset, score_strict=rule == "strict")
     rows, groups = [{"design": d} for d in designs], {}
     for i, d in enumerate(designs):
         if t.ges is not None:
@@ -236,8 +247,9 @@ def score(t: Target, designs: list, episodes: int | None = None, workers: int = 
         j = policies.score_policy(pol, full, t.task, preset, workers, label + ("" if k is None else f" specialist {k}"),
                                  trace=trace)
         for i, jj, f in zip(idx, j, full):
-            levels, last = walk(t.task, start_level(t.task, preset), trace[f.tobytes()])
-            rows[i].update(J=float(jj), x=trace[f.tobytes()], levels=levels,
+            xs = trace[f.tobytes()]
+            levels, last = walk(t.task, start_level(t.task, preset), xs, preset.score_rule(t.task))
+            rows[i].update(J=float(jj), x=xs, levels=levels, outcome=outcomes(t.task, xs),
                            walk_ok=bool(np.isclose(ballu.level_score(t.task, last), jj)))
     return rows
 
@@ -246,18 +258,23 @@ def cmd_score(a) -> None:
     t = resolve(a.policy, workers=a.workers)
     designs = [design_arg(s, t.space) for s in a.design or ([] if a.design_file else ["optimum"])]
     designs += designs_file(a.design_file, t.space) if a.design_file else []
+    if a.rule == "strict" and t.task != "obstacle":
+        raise UseError(f"--rule strict: the obstacle's rule (its stay band is a robot at the box); {t.task} has "
+                       f"the facts' rule only")
+    rule = a.rule or ("strict" if t.preset.score_rule(t.task) else "facts")
     print(f"scoring {METHODS.get(t.method, t.where)} ({t.where}, {t.task} {t.sp}) on {len(designs)} design(s): "
           f"{a.episodes or t.preset.score_episodes} episodes from level {start_level(t.task, t.preset)} "
-          f"({t.preset.name} preset's J), {a.workers} worker(s)", flush=True)
-    t0, rows, unit = time.time(), score(t, designs, a.episodes, a.workers, t.method), run_all.UNIT[t.task]
+          f"({t.preset.name} preset's J, the {rule} rule), {a.workers} worker(s)", flush=True)
+    t0, rows, unit = time.time(), score(t, designs, a.episodes, a.workers, t.method, rule), run_all.UNIT[t.task]
     out, n = a.out or f"scores-{t.method}-{t.task}-{t.sp}.csv", max(len(r["x"]) for r in rows)
     with open(out, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["design", *ballu.DESIGN_NAMES, f"J_{unit}", "specialist", "log_density"]
-                   + [f"level_{e + 1}" for e in range(n)] + [f"x_{e + 1}" for e in range(n)])
+        w.writerow(["design", *ballu.DESIGN_NAMES, f"J_{unit}", "rule", "cleared", "band", "short", "specialist",
+                    "log_density"] + [f"level_{e + 1}" for e in range(n)] + [f"x_{e + 1}" for e in range(n)])
         for r in rows:
-            d, gs = r["design"], "specialist" in r
-            w.writerow([d.label, *[f"{v:.6g}" for v in d.full], f"{r['J']:.4g}", r.get("specialist", ""),
+            d, gs, o = r["design"], "specialist" in r, r["outcome"]
+            w.writerow([d.label, *[f"{v:.6g}" for v in d.full], f"{r['J']:.4g}", rule,
+                        *[int((o == k).sum()) for k in (2, 1, 0)], r.get("specialist", ""),
                         f"{r['log_density']:.4f}" if gs else ""] + r["levels"]
                        + ["" if x is None else f"{x:.4f}" for x in r["x"]])
             print(f"{d.label:>24}  {'  '.join(f'{name} {v:.4g}' for name, v in zip(t.space.names, d.theta))}  J "
@@ -266,7 +283,10 @@ def cmd_score(a) -> None:
             print(f"{'levels':>30}  {' '.join(f'{v:>4}' for v in r['levels'])}"
                   + ("" if r["walk_ok"] else "  (replayed walk != J: a blown-up episode)"))
             print(f"{'final x, m':>30}  {' '.join('   -' if x is None else f'{x:4.2f}' for x in r['x'])}")
-    print(f"wrote {out} ({len(rows)} designs, {time.time() - t0:.0f} s)")
+            print(f"{'outcome':>30}  {' '.join(f'{OUTCOME_MARK[int(k)]:>4}' for k in o)}  cleared "
+                  f"{(o == 2).sum()} of {len(o)}, stay band {(o == 1).sum()}, short {(o == 0).sum()}")
+    print(f"wrote {out} ({len(rows)} designs, {time.time() - t0:.0f} s); outcome: C cleared (past x = "
+          f"{ballu.task_geometry(t.task)['up']} m), b stay band, s short, - blown up")
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -336,6 +356,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--design", action="append", help=f"of the cell's space: {DESIGN_HELP}; repeatable; default optimum")
     s.add_argument("--design-file", metavar="CSV", help="a CSV of designs: a header of names (and label), a row each")
     s.add_argument("--episodes", type=positive, help="episodes of J (default: the run's preset's score_episodes)")
+    s.add_argument("--rule", choices=("facts", "strict"), help="J's curriculum rule: the facts' (an episode in the "
+                   "stay band keeps its level) or strict (obstacle: down unless it cleared); default: the run's")
     add_workers(s, "worker processes scoring the designs", positive)
     w.set_defaults(run=cmd_watch)
     s.set_defaults(run=cmd_score)
