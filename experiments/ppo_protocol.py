@@ -95,6 +95,9 @@ PROTOCOL_SETTINGS = {
     "obs_code_vel_reward": {**LR_CAP, "obs": "code_vel", "reward_form": "code"},
     "code_mdp": {**LR_CAP, "obs": "code", "reward_form": "code", "warmup_steps": WARMUP_STEPS},
     "code_vel_mdp": {**LR_CAP, "obs": "code_vel", "reward_form": "code", "warmup_steps": WARMUP_STEPS},
+    # the obstacle's strict curriculum [ours, docs/stay_band]: a lane goes down a level unless its episode cleared
+    # the box (past x = 1.0 m), where the facts keep the level in the stay band; on today's defaults (obs_code_vel)
+    "strict_train": {**LR_CAP, "obs": "code_vel", "strict": True},
     # several levers at once (a guess made before the screen, to see whether they add up)
     "combo": {**BEFORE, "entropy_coef": 0.0, "max_std": 0.5, "num_steps": 128, "minibatches": 2, "epochs": 3,
               "start_level": "spread"},
