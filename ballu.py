@@ -11,8 +11,8 @@ Read top to bottom:
   8. the score J(policy, design) and two scripted controllers (stand, pump)
   9. command line: bench (throughput), strip --out PNG (a pump gait's motion strip): experiments/ballu_bench.py
 
-Of the project it imports only runkit/lanes.py (worker processes; knows no robot): the learner (ppo.py) and the
-co-design (ges.py) sit on top. Physics audit and open-loop capability: experiments/ballu_capability.py.
+Of the project it imports only runkit/ (lanes.py: worker processes; box.py: the design box; args.py: its command
+line), none of which knows a robot: the learner (ppo.py) and the co-design (ges.py) sit on top. Physics audit and open-loop capability: experiments/ballu_capability.py.
 
 Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward). Every choice
 says where it comes from: [paper], [facts] (the authors' code read as facts, see docs/facts.md), or [ours]
@@ -196,7 +196,7 @@ def train_start_levels(task: str, score_start: int | None = None):
     return spread_start_levels(task, score_start) if task in SPREAD_START_TASKS else 0
 
 
-START_LEVEL_NAMES = ("task", "spread", "zero")   # the names ppo.py and run_all.py accept for a start
+START_LEVEL_NAMES = ("task", "spread", "zero")   # the names a start takes (run_all's ppo_start, ppo_ballu)
 
 
 def named_start_levels(start, task: str, score_start: int | None = None):
@@ -328,7 +328,6 @@ class BalluConfig:
 # Link order in the URDF (PyBullet link index = joint index): the root is the pelvis (-1).
 NECK, HIP_L, KNEE_L, HIP_R, KNEE_R = 0, 1, 2, 3, 4
 BALLOON, FEMUR_L, TIBIA_L, FEMUR_R, TIBIA_R = 0, 1, 2, 3, 4
-KNEES = [KNEE_L, KNEE_R]
 JOINTS = [NECK, HIP_L, HIP_R, KNEE_L, KNEE_R]    # observation order
 JOINT_LIMITS = np.array([[-math.pi / 2, math.pi / 2]] * 3 + [[0.0, math.radians(100)]] * 2)   # JOINTS order [facts]
 TIBIAE = [TIBIA_L, TIBIA_R]
@@ -446,9 +445,7 @@ def balloon_force(gcr: float, mass: float, vel, cfg: BalluConfig = BalluConfig()
 def quirk_torque(balloon_orn, force, cfg: BalluConfig = BalluConfig()) -> list:
     """QUIRK of the authors' code: torque r x F, r = 0.38 m along the balloon's own axis (rotating with it): lift
     acts as if 0.76 m above the neck, turning a tilted balloon upright. Off (`quirk_buoyancy_torque`). [facts]"""
-    x, y, z, w = balloon_orn
-    r = cfg.balloon_above_neck
-    rx, ry, rz = r * 2 * (x * z + w * y), r * 2 * (y * z - w * x), r * (1 - 2 * (x * x + y * y))  # R (0, 0, r)
+    rx, ry, rz = cfg.balloon_above_neck * z_axis(balloon_orn)   # R (0, 0, r)
     fx, fy, fz = force
     return [ry * fz - rz * fy, rz * fx - rx * fz, rx * fy - ry * fx]
 
@@ -580,6 +577,13 @@ class LaneState(NamedTuple):
     leg_axis: np.ndarray
 
 
+def z_axis(quat) -> np.ndarray:
+    """The third column of the rotation of unit quaternions quat (..., 4) = (x, y, z, w): R (0, 0, 1), where a
+    body's own z axis points (a leg's, the balloon's)."""
+    x, y, z, w = np.moveaxis(np.asarray(quat, dtype=float), -1, 0)
+    return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+
+
 def to_base_frame(quat, v):
     """World vectors v (n, 3) expressed in the frames of the unit quaternions quat (n, 4) = (x, y, z, w): R^T v."""
     q, w = quat[:, :3], quat[:, 3:]
@@ -657,7 +661,6 @@ def policy_config(policy, task: str, cfg: BalluConfig | None = None) -> BalluCon
 
 
 OBS_NAMES = list(obs_names(BalluConfig()))                       # the default observation (obstacle)
-TG_OBS_NAMES = list(obs_names(BalluConfig(tg=True)))             # with BalluConfig.tg: its phase after a_l, a_r
 OBS_DIM, ACT_DIM = len(OBS_NAMES), 2
 
 
@@ -1039,8 +1042,7 @@ class BalluEnv(_ExactResume):
         pos, orn, lin, ang, jq, jqd, knee, leg_orn = (np.array(c, dtype=float) for c in zip(*rows))
         vel = np.concatenate([lin, ang], axis=1)
         # foot tip = tibia frame origin (the knee) + R (0, 0, -L): the third column of R times -L
-        x, y, z, w = np.moveaxis(leg_orn, -1, 0)
-        axis = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1)
+        axis = z_axis(leg_orn)
         toe = knee - self._toe_len[:, None, None] * axis
         return LaneState(pos, vel, jq, jqd, toe, orn, knee, axis)
 
@@ -1278,8 +1280,9 @@ def score(policy, designs, task: str = "obstacle", episodes: int | None = None, 
 
 
 # ----------------------------------------------------------------------------------------------------------
-# 9. Command line: bench, strip --out PNG (experiments/ballu_bench.py)
+# 9. Command line: bench, strip --out PNG, experiments/ballu_bench.py's, in a child process (ballu imports no tool
+#    built on it: the bench and the strip's figure import ballu)
 # ----------------------------------------------------------------------------------------------------------
 if __name__ == "__main__":
-    from experiments.ballu_bench import main
-    raise SystemExit(main())
+    from runkit.args import delegate
+    raise SystemExit(delegate("experiments.ballu_bench"))

@@ -13,7 +13,7 @@ hands any design to one specialist, so an outer search (TPE) scores designs with
 Equation numbers count the paper's numbered equations in order:
   (5) space-filling objective of the initialisation, (6) probe argmax, (7) refit, (8) unnormalised f_k,
   (9) MC coverage c-hat, (10) density router. Alg. 1's lines: 1-5 initialisation, 6-19 the loop (Train 7-10,
-  Probe 11-15, Refit 16, CheckCoverage 17). Provenance of every choice is marked in its docstring: [paper],
+  Probe 11-15, Refit 16, CheckCoverage 17; the paper's text calls it 18). Provenance of every choice is marked in its docstring: [paper],
   [facts] (docs/facts.md, the authors' code read as facts) or [ours] (the paper and the facts are silent).
 
 This module knows nothing about BALLU or PPO. It takes two plain callables (picklable, so that the K
@@ -54,6 +54,7 @@ from typing import Callable
 import numpy as np
 
 from runkit.box import Box   # the design box: names, bounds, the unit cube [paper, Sec. IV-B]
+from runkit.files import write_json   # atomic: a crash never leaves half a state file
 from runkit.pool import SerialExecutor   # runs each task inline: for debugging and tests
 
 # ---------------------------------------------------------------------------------------------------------
@@ -103,15 +104,18 @@ class GESConfig:
 
 
 # Every draw comes from a generator derived from (seed, stream, round, k), so results do not depend on the
-# order in which specialists run [ours].
+# order in which specialists run [ours]. The project's one seed derivation: a run names its consumers through it
+# too (codesign.policies.derive_seed).
 INIT, INIT_DESIGNS, COVERAGE, TRAIN, PROBE, CHECK = range(6)  # stream ids
 
 
 def rng_for(seed: int, *keys: int) -> np.random.Generator:
+    """The generator of stream `keys` of `seed` (numpy's SeedSequence of [seed, *keys])."""
     return np.random.default_rng(np.random.SeedSequence([seed, *keys]))
 
 
 def seed_for(seed: int, *keys: int) -> int:
+    """An integer seed for stream `keys` of `seed`, for a consumer that seeds its own generators (a trainer)."""
     return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0])
 
 
@@ -170,7 +174,7 @@ def sample_probes(mu: np.ndarray, sigma: np.ndarray, rng: np.random.Generator, n
                   pool_size: int = 2000, band: tuple = (-2.5, -0.5)) -> np.ndarray:
     """Border probes [paper, Alg. 1 SampleBorder; facts]: pool_size uniform points, keep those whose
     g = max_k log f_k lies in the band and take the n_probe OUTERMOST of them (lowest g first; this order and
-    the top-up are the authors' code, scripts/pec, not in the facts file; why: docs/choices.md). If fewer than
+    the top-up are the authors' code, not in the facts file; why: docs/choices.md). If fewer than
     n_probe lie in the band, top up with the out-of-band points of lowest g, i.e. farthest from every territory.
     Returns (n_probe, d) unit points."""
     pool = rng.random((pool_size, mu.shape[1]))
@@ -193,14 +197,6 @@ class GaussianSampler:
     def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
         x = self.space.from_unit(sample_clipped(self.mu, self.sigma, rng, n))
         return np.clip(x, self.space.lo, self.space.hi)  # no ulp past the bounds
-
-    @property
-    def mu_physical(self) -> np.ndarray:
-        return self.space.from_unit(self.mu)
-
-    @property
-    def sigma_physical(self) -> np.ndarray:
-        return self.sigma * (self.space.hi - self.space.lo)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -315,8 +311,8 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
 # 4. The GES loop [paper, Alg. 1]
 # ---------------------------------------------------------------------------------------------------------
 def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state: GESState, points) -> GESState:
-    """One pass of Alg. 1's loop (lines 7-18): Train, Probe (eq. 6), Refit (eq. 7), CheckCoverage (eqs. 8-9;
-    the paper's text calls it line 18); then, with config.adaptive, section 8's merges and splits. Returns the
+    """One pass of Alg. 1's loop (the body of lines 6-19): Train, Probe (eq. 6), Refit (eq. 7), CheckCoverage
+    (eqs. 8-9); then, with config.adaptive, section 8's merges and splits. Returns the
     next state; `state` is not modified. A specialist is named by its id (its index with a fixed K): its seeds
     and checkpoint files follow it when others are merged away."""
     t, K, ids = state.round, state.K, state.ids
@@ -506,23 +502,13 @@ def ckpt_path(i: int, t: int) -> str:
     return os.path.join(CKPT_DIR, f"spec{i}_round{t:02d}.ckpt")
 
 
-def _atomic_json(path: str, obj) -> None:
-    """Write JSON via tmp file + os.replace, so a crash never leaves a half-written state [ours]."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
 def history_entry(space, state: GESState, cov: float, probes, winner, trained: list, events: list | None,
                   scores=None) -> dict:
     """Entry r (completed rounds; 0 = initialisation): the territories after refit r, round r-1's probes, their
     winners (indices into `trained`) and every trained specialist's score of each (`probe_scores`: ties too), and
     the round's checkpoints; adaptive K adds the ids, merges and splits."""
     entry = {"round": state.round, "coverage": cov, "mu_unit": state.mu.tolist(), "sigma_unit": state.sigma.tolist(),
-             "mu": space.from_unit(state.mu).tolist(), "sigma": (state.sigma * (space.hi - space.lo)).tolist(),
+             "mu": space.from_unit(state.mu).tolist(), "sigma": space.from_unit_scale(state.sigma).tolist(),
              "wins": [int(w) for w in np.bincount(winner, minlength=len(trained))],
              "n_designs": [len(e) for e in state.eta],
              "probes_unit": np.asarray(probes).tolist(), "winner": [int(w) for w in winner],
@@ -586,14 +572,16 @@ def _load_state(run_dir: str, space: Box, config: GESConfig, seed: int) -> GESSt
 
 
 def _save_state(run_dir, space, config, seed, state: GESState) -> None:
-    _atomic_json(os.path.join(run_dir, STATE_FILE), dict(_state_doc(state), space=space.to_dict(),
-                                                         config=asdict(config), seed=seed))
-    _atomic_json(os.path.join(run_dir, HISTORY_FILE), _history_doc(space, config, seed, state.history))
+    """state.json and history.json, each written atomically and fsync'ed (runkit.files.write_json) [ours]."""
+    write_json(os.path.join(run_dir, STATE_FILE), dict(_state_doc(state), space=space.to_dict(), config=asdict(config),
+                                                       seed=seed), indent=None, durable=True)
+    write_json(os.path.join(run_dir, HISTORY_FILE), _history_doc(space, config, seed, state.history), indent=None,
+               durable=True)
 
 
 def _result(run_dir, space, config, seed, state: GESState) -> GESResult:
     return GESResult(space, config, seed, run_dir, state.mu, state.sigma, space.from_unit(state.mu),
-                     state.sigma * (space.hi - space.lo),
+                     space.from_unit_scale(state.sigma),
                      [os.path.join(run_dir, c) if c else None for c in state.ckpt],
                      _history_doc(space, config, seed, state.history), state.round, state.history[-1]["coverage"],
                      float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.task_seconds)), list(state.ids))
@@ -791,13 +779,13 @@ def split(terr: dict, checks: np.ndarray, S: np.ndarray, config: GESConfig, r: i
 
 
 # ---------------------------------------------------------------------------------------------------------
-# 9. Command line: demo, sweep, bench (experiments/ges_demo.py: the synthetic landscape, the benchmark)
+# 9. Command line: demo, sweep, bench, experiments/ges_demo.py's, in a child process (ges imports no tool built on it)
 # ---------------------------------------------------------------------------------------------------------
 def main(argv=None) -> int:
-    """`python ges.py demo --out OUT [--K auto --sites B] | sweep | bench`: experiments/ges_demo.py's command
-    line, imported when run (ges imports nothing of experiments/ at load)."""
-    from experiments.ges_demo import main as demo_main
-    return demo_main(argv)
+    """`python ges.py demo --out OUT [--K auto --sites B] | sweep | bench`: runs `python -m experiments.ges_demo`
+    (the synthetic landscape and the figure, which import ges) with the same arguments; returns its exit code."""
+    from runkit.args import delegate
+    return delegate("experiments.ges_demo", argv)
 
 
 if __name__ == "__main__":

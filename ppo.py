@@ -37,6 +37,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from runkit.files import atomic
 from runkit.progress import eta_s
 
 
@@ -45,7 +46,7 @@ from runkit.progress import eta_s
 # ----------------------------------------------------------------------------------------------------------
 @dataclass
 class PPOConfig:
-    """PPO settings: [facts] = the authors' runs (docs/facts.md), [ours] = adapted to a 2-core CPU.
+    """PPO settings: [facts] = the authors' runs (docs/facts.md), [ours] = adapted to training on a few CPU cores.
 
     The fixed protocol of docs/ppo_protocol screened batch shape, epochs, entropy bonus, std bound, squashed
     actions, reward form and scale, observation clip, gradient clip, learning-rate cap and curriculum start on
@@ -104,11 +105,13 @@ class RunningNorm:
         self.var = (self.var * self.count + v * n + delta ** 2 * self.count * n / tot) / tot
         self.count = tot
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        """(x - mean) / std, clipped to +-clip. An entry that was constant in training (a single design's
-        design vector) has std ~1e-4, so a value 0.05 % away from the training one already reads as +-clip:
-        score a single-design policy on its own design, exactly as trained (docs/ppo_protocol)."""
-        return np.clip((x - self.mean) / np.sqrt(self.var + 1e-8), -self.clip, self.clip).astype(np.float32)
+    def __call__(self, x: np.ndarray, cols: slice = slice(None)) -> np.ndarray:
+        """(x - mean) / std, clipped to +-clip; `cols`: x holds only these entries (the MoE gate's design). An entry
+        that was constant in training (a single design's design vector) has std ~1e-4, so a value 0.05 % away
+        from the training one already reads as +-clip: score a single-design policy on its own design, exactly as
+        trained (docs/ppo_protocol)."""
+        return np.clip((x - self.mean[cols]) / np.sqrt(self.var[cols] + 1e-8), -self.clip,
+                       self.clip).astype(np.float32)
 
     def state(self) -> dict:
         return {"mean": torch.tensor(self.mean), "var": torch.tensor(self.var), "count": float(self.count)}
@@ -443,7 +446,7 @@ def rollout(kind, policy, norm, env, obs, T: int, cfg: PPOConfig, noise_seed: in
 
     Layout [ours, measured fastest]: a multi-process env (one with `run`, ballu.VecBallu) gets the policy's
     weights and each worker rolls out its own lanes with a local copy, so no step waits for the trainer
-    (stepping the workers from here, one round trip per 20 Hz step, ran at ~91 % of env-only). Any other env
+    (stepping the workers from here costs a round trip per 20 Hz step: `python ppo.py bench`). Any other env
     is rolled out in this process."""
     if hasattr(env, "run"):
         weights = {k: v.numpy() for k, v in policy.state_dict().items()}   # arrays: a sent tensor goes to shared memory
@@ -654,9 +657,8 @@ def save_checkpoint(path, st: TrainState, kind, cfg, run=None, obs_names=None):
         state["run"] = run
     if obs_names is not None:
         state["obs_names"] = list(obs_names)
-    tmp = f"{path}.tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    with atomic(path, "wb") as fh:
+        torch.save(state, fh)
 
 
 def best_path(ckpt: str) -> str:
@@ -790,11 +792,9 @@ class PolicyFn:
 
     def gate_weights(self, design_obs):
         """MoE gate weights for raw design-vector observations (n, design_dim), normalised as in training."""
-        d = self.policy.design_dim
-        x = np.clip((design_obs - self.norm.mean[-d:]) / np.sqrt(self.norm.var[-d:] + 1e-8), -self.norm.clip,
-                    self.norm.clip)
+        x = self.norm(design_obs, slice(-self.policy.design_dim, None))
         with torch.no_grad():
-            return self.policy.gate_weights(torch.as_tensor(x, dtype=torch.float32)).numpy()
+            return self.policy.gate_weights(torch.from_numpy(x)).numpy()
 
 
 def load_policy(path: str) -> PolicyFn:
@@ -816,7 +816,7 @@ def _random_steps(env, T, mean, std, seed):
 def bench(make_env, cfg: PPOConfig = PPOConfig(), workers: int = 2, iters: int = 30):
     """Env-only control steps/s (fixed random policy) vs end-to-end PPO training, same env layout.
 
-    This VM's speed drifts by +-20 % within minutes, so the two are measured in alternation: after every PPO
+    A machine's speed can drift within minutes, so the two are measured in alternation: after every PPO
     iteration (rollout + GAE + update + checkpoint, timed between iterations) a second, identical env steps
     the same number of control steps with random actions, each worker stepping its own lanes with no round
     trip to this process (the fastest the env can be stepped; the difference is the policy and the update
@@ -863,9 +863,9 @@ COMMANDS = """ppo.py -- PPO from scratch in torch; its command line times it (tr
 def _main(argv=None):
     """`python ppo.py bench`: PPO's own cost on a batched env, next to stepping that env alone. The env comes
     from a module named on the command line (default: ballu, the robot of the paper), which must offer
-    make_env(num_envs, workers); this module imports no env of its own (nor experiments/ at load)."""
+    make_env(num_envs, workers); this module imports no env of its own."""
     import importlib
-    from experiments import args
+    from runkit import args
     ap = args.program("python ppo.py", COMMANDS)
     sub = ap.add_subparsers(dest="cmd", required=True)
     b = args.command(sub, "bench", "env-only vs end-to-end training rate", COMMANDS)

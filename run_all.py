@@ -20,7 +20,7 @@ Read top to bottom, the paper's experiments section in order:
        figures    Figs. 1, 3-8 and every learning curve (drawn by report/figures.py)
   4. the stages' jobs: policies, GES runs, score sets, the step-matched e2e MLP, TPE searches
   5. REPORT.md and results.json (the tables' Markdown in report/); 6. machinery (repair, hashed files);
-  7. the command line (runkit.cli; watch and score: experiments/use.py)
+  7. the command line (runkit.cli; watch and score: experiments/use.py, run in a child process)
 Output: results/<preset>/ (manifest.json, REPORT.md, results.json, test_scores.csv, figures/, and the work files
 policies/, ges/, tpe/, stages/). Every stage keeps its result and long ones checkpoint inside, so a rerun skips
 finished work and, all randomness deriving from --seed, redoes a damaged file's part with the same numbers
@@ -53,9 +53,10 @@ from report.strip import motion_strip
 from report.tables import (report_claims, report_cost, report_figures, report_ges_runs, report_header, report_ksens,
                            report_table1, report_table2, report_table3, report_territories, report_wall)
 from runkit import cli
+from runkit.args import delegate
 from runkit.cli import Experiment, calibration, kill_hook, stage_result
 from runkit.clock import stage_times
-from runkit.files import read_back, read_json, redo_if_damaged, write_json
+from runkit.files import atomic, read_back, read_json, redo_if_damaged, write_json
 from runkit.folder import git_commit
 from runkit.logs import train_seconds, training_rate
 from runkit.plan import Layout, plan_seconds
@@ -111,7 +112,7 @@ class Preset:
     cost_task: str = "obstacle"  # the paper measured cost on the 3D space
     cost_space: str = "d3"
     ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
-    ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo.py's CLI default for BALLU)
+    ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo_ballu's default for BALLU)
     ppo_start: str = "task"     # ours: "task" = the task's measured default (ballu.train_start_levels:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
     #                             up to J's start (ballu.spread_start_levels); "zero" = every lane at level 0
@@ -129,7 +130,7 @@ class Preset:
     # [facts] round 0's steps per specialist (None: ges_round_steps): the authors' first GES round trains 1,600
     # updates, each later one 500 (~3.2x); a run that reaches its coverage after one round keeps round 0's steps
     ges_first_round_steps: int | None = None
-    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 9), K <= K_d3, starting there (merging takes a
+    # [ours] Fig. 7 also runs GES with adaptive K (ges.py section 8), K <= K_d3, starting there (merging takes a
     # round, splitting three: docs/ges_adaptive): REPORT.md's
     # K-sensitivity table gains an "auto" row; each round scores ges_n_check() designs of every territory
     ksens_auto: bool = False
@@ -185,11 +186,6 @@ class Preset:
     def ges_n_check(self) -> int:
         """Adaptive K's checks per territory and round: as many as the probes (>= 2, the split halves them)."""
         return max(2, self.ges_probes)
-
-
-# [ours] a bisection over curriculum levels for GES's probe scores (ballu.score's `level_steps`), ~3x cheaper
-# than the 20-episode J; in no preset: it picks J's winner too rarely (docs/probe_agreement).
-BISECTION = (16, 8, 4, 2, 1, 1, 1)
 
 
 # smoke: the whole pipeline with tiny budgets (the numbers mean nothing) to check that every stage, table and
@@ -808,10 +804,8 @@ def report(run: Run, manifest: dict) -> str:
                          f"python run_all.py --preset {run.preset.name} --plan --workers {run.workers} --out "
                          "<this folder>", training_rate(run.out), cal)
     text = "\n".join(lines).rstrip("\n") + "\n"
-    tmp = run.path(f"REPORT.md.tmp{os.getpid()}")   # atomic, as every write of a run
-    with open(tmp, "w") as fh:
+    with atomic(run.path("REPORT.md")) as fh:   # atomic, as every write of a run
         fh.write(text)
-    os.replace(tmp, run.path("REPORT.md"))
     write_json(run.path("results.json"), {"manifest": manifest, "stages": results, "stage_seconds": times})
     return text
 
@@ -851,9 +845,10 @@ def repair(run: Run) -> None:
 
 
 # the code that produces the numbers (simulator, PPO, GES, TPE; lanes.py: score's workers; policies.py: how a run
-# trains and scores), hashed with RESULTS_FORMAT into the manifest (runkit.folder.code_hash): a results folder made
-# by other code is refused instead of mixed. (run_all.py's own reporting may change freely.)
-HASHED_FILES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py", "codesign/policies.py")
+# trains and scores; box.py: the design box every design passes), hashed with RESULTS_FORMAT into the manifest
+# (runkit.folder.code_hash): a results folder made by other code is refused instead of mixed. (run_all.py's own
+# reporting may change freely; test_code_hash_covers_every_file_that_makes_numbers.)
+HASHED_FILES = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "runkit/lanes.py", "codesign/policies.py", "runkit/box.py")
 # this checkout's files a Dask cluster started by hand gets, in this order: each imports only earlier ones
 PROJECT_FILES = ("runkit", "report", "ballu.py", "ppo.py", "ges.py", "tpe.py", "codesign", "run_all.py")
 
@@ -874,11 +869,11 @@ EXPERIMENT = Experiment(tool="run_all.py", description="Regenerate every table a
 
 def main(argv=None) -> int:
     """`python run_all.py ...` (runkit.cli.main): exit code 0; 2 on bad input, before anything is written; 3 when
-    --stop-by stopped the run. `python run_all.py watch|score ...`: use what a run trained (experiments/use.py)."""
+    --stop-by stopped the run. `python run_all.py watch|score ...`: use what a run trained, experiments/use.py's
+    command line in a child process (use.py imports run_all: an import back would close a circle)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] in (["watch"], ["score"]):
-        from experiments import use
-        return use.main(argv)
+        return delegate("experiments.use", argv, HERE)
     return cli.main(argv, EXPERIMENT)
 
 

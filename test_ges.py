@@ -326,6 +326,9 @@ def test_ballu_action_smoothing_applies_an_exponential_filter_that_the_observati
     env.close()
 
 
+TG_OBS_NAMES = list(ballu.obs_names(BalluConfig(tg=True)))   # with BalluConfig.tg: its phase after a_l, a_r
+
+
 @pytest.mark.parametrize("workers", [0, 2])
 def test_ballu_trajectory_generator_pumps_both_knees_around_the_policys_centres(workers):
     """tg: actions (c_l, c_r, f, A) give knee commands c_k + 0.5 A sin(2 pi phase), clipped to [0, 1], the phase
@@ -333,10 +336,10 @@ def test_ballu_trajectory_generator_pumps_both_knees_around_the_policys_centres(
     the design still last. In one process (0) and in worker processes (VecBallu)."""
     cfg = replace(BalluConfig(), tg=True)
     env = BalluEnv(2, cfg) if workers == 0 else ballu.make_env(2, workers, cfg)
-    assert (env.obs_dim, env.act_dim) == (len(ballu.TG_OBS_NAMES), 4) == (ballu.OBS_DIM + 2, 4)
+    assert (env.obs_dim, env.act_dim) == (len(TG_OBS_NAMES), 4) == (ballu.OBS_DIM + 2, 4)
     env.reset(seed=0, options={"designs": BASELINE, "levels": 0})
     act = np.array([[0.5, 0.3, 0.2, 1.0], [0.9, 0.1, 1.0, 0.4]])
-    names = list(ballu.TG_OBS_NAMES)
+    names = list(TG_OBS_NAMES)
     a_l, s = names.index("a_l"), names.index("tg_sin")
     for k in range(1, 4):
         obs = env.step(act)[0]
@@ -440,8 +443,8 @@ class ThresholdEnv:
 
 @pytest.mark.parametrize("task", ballu.TASKS)
 def test_ballu_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypatch, task):
-    """run_all.BISECTION (7 episodes) ends within one level of the 20-episode J for every threshold the unit walk
-    can reach (start +-19: not range-limited), with or without a stay band at the threshold."""
+    """probe_agreement.BISECTION (7 episodes) ends within one level of the 20-episode J for every threshold the unit
+    walk can reach (start +-19: not range-limited), with or without a stay band at the threshold."""
     start = ballu.SCORE_START_LEVEL[task]
     T = np.arange(start - 19, start + 20)
     monkeypatch.setattr(ballu, "BalluEnv", ThresholdEnv)
@@ -451,7 +454,7 @@ def test_ballu_score_bisection_lands_within_one_level_of_the_unit_walk(monkeypat
         monkeypatch.setattr(ThresholdEnv, "stay", stay)
         unit = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task)]
         half = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task,
-                                                                level_steps=run_all.BISECTION)]
+                                                                level_steps=probe_agreement.BISECTION)]
         assert np.abs(np.subtract(unit, T)).max() <= 1 and np.abs(np.subtract(half, unit)).max() <= 1, (unit, half)
     short = [run_all.level_of(task, j) for j in ballu.score(ballu.stand, designs, task, level_steps=(8, 4, 2, 1))]
     assert np.abs(np.subtract(short, unit)).max() > 1      # a schedule reaching +-15 cannot follow every threshold
@@ -1951,7 +1954,7 @@ def test_ges_sampler_is_picklable_clipped_and_physical():
     D2_BOX.validate(x)  # clipped to the box, physical units
     assert np.mean(x[:, 0] == 0.72) > 0.3  # clipping piles mass on the low GCR bound
     np.testing.assert_allclose(x[:, 1].mean(), 0.001 + 0.5 * 0.099, atol=1e-3)
-    np.testing.assert_allclose(s.sigma_physical, [0.3 * 0.18, 0.01 * 0.099])
+    np.testing.assert_allclose(s2.space.from_unit_scale(s2.sigma), [0.3 * 0.18, 0.01 * 0.099])   # Box: physical sigma
 
 
 def test_ges_bench_runs():
@@ -1991,14 +1994,14 @@ def test_ges_damaged_state_names_the_file_and_what_to_do(synthetic_run, tmp_path
 def test_ges_command_line_bad_input_is_one_line_and_writes_nothing(argv, msg, tmp_path, capsys):
     (tmp_path / "file").write_text("a file")
     out = str(tmp_path / "demo")
-    assert ges.main([{"OUT": out, "FILE": str(tmp_path / "file")}.get(a, a) for a in argv]) == 2
+    assert ges_demo.main([{"OUT": out, "FILE": str(tmp_path / "file")}.get(a, a) for a in argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("ges.py: error: ") and msg in err, err
     assert not os.path.exists(out)
 
 
 # =========================================================================================================
-# ges: adaptive K (ges.py section 9) on planted landscapes
+# ges: adaptive K (ges.py section 8) on planted landscapes
 # =========================================================================================================
 def _adaptive(run_dir, B, K, seed=0, dim=2, train=None, **kw):
     land = ges_demo.planted(B, dim, seed)
@@ -2100,12 +2103,12 @@ def test_ges_adaptive_bad_settings_name_the_parameter(kw, words):
 
 
 def test_ges_demo_adaptive_ends_with_k_coverage_and_score(tmp_path, capsys):
-    assert ges.main(["demo", "--out", str(tmp_path / "d"), "--K", "auto", "--sites", "2", "--seed", "1"]) == 0
+    assert ges_demo.main(["demo", "--out", str(tmp_path / "d"), "--K", "auto", "--sites", "2", "--seed", "1"]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     m = re.fullmatch(r"final K = (\d+), coverage = ([\d.]+) %, mean score = ([\d.]+)", last)
     assert m and 1 <= int(m[1]) <= 8 and float(m[3]) > 0, last
     assert os.path.getsize(tmp_path / "d" / "territories.png") > 20_000
-    assert ges.main(["demo", "--out", str(tmp_path / "f"), "--K", "2", "--sites", "2", "--seed", "1"]) == 0
+    assert ges_demo.main(["demo", "--out", str(tmp_path / "f"), "--K", "2", "--sites", "2", "--seed", "1"]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1].startswith("final K = 2, ")
 
 
@@ -2326,7 +2329,7 @@ def test_tpe_resumed_optimize_equals_uninterrupted(tmp_path, stop_after):
     resumed = optimize(flaky, *box, 40, seed=5, path=path, verbose=False)
     assert records(resumed) == records(full)
     assert any(not t.ok for t in full.trials)  # the resume covered failed trials
-    assert not (tmp_path / "resumed.json.tmp").exists()
+    assert not list(tmp_path.glob("resumed.json.tmp*"))   # runkit.files.atomic: path.tmp<pid>
 
 
 def test_tpe_resumed_ask_tell_equals_uninterrupted(tmp_path):
@@ -3103,7 +3106,7 @@ def test_run_all_probe_schedule_scores_ges_probes_only(monkeypatch, tmp_path):
 
     monkeypatch.setattr(ballu, "score", fake_score)
     monkeypatch.setattr(ppo, "load_policy", lambda ckpt: ballu.stand)
-    p = replace(run_all.QUICK, probe_level_steps=run_all.BISECTION, score_start_level=3)
+    p = replace(run_all.QUICK, probe_level_steps=probe_agreement.BISECTION, score_start_level=3)
     space = policies.space_of(p, "obstacle", "d2")
     theta = space.sample_uniform(np.random.default_rng(0), 2)
     policies.ScoreSpecialist("obstacle", space, p, probe=True)(0, "ckpt", theta)
@@ -3111,7 +3114,7 @@ def test_run_all_probe_schedule_scores_ges_probes_only(monkeypatch, tmp_path):
     trace = {}
     policies.PolicyJ(ballu.stand, space, "obstacle", p, trace=trace)(theta)
     assert [(s["level_steps"], s["episodes"], s["start_level"]) for s in seen] == [
-        (run_all.BISECTION, None, 3), (None, 20, 3), (None, 20, 3)]
+        (probe_agreement.BISECTION, None, 3), (None, 20, 3), (None, 20, 3)]
     assert list(trace.values()) == [[0.0], [0.0]] and list(trace) == [d.tobytes() for d in space.full(theta)]
 
     def grab(space, train_fn, score_fn, *args, **kw):
@@ -3657,8 +3660,9 @@ MLP_OBST = os.path.join(QUICK_RUN, "policies", "mlp-obstacle-d2", "policy.pt")  
 
 
 def use_main(capsys, *argv) -> tuple:
-    """(exit code, stdout, stderr) of `python run_all.py argv...` (watch and score: experiments/use.py)."""
-    code = run_all.main([str(a) for a in argv])
+    """(exit code, stdout, stderr) of `python run_all.py argv...` (watch and score: experiments/use.py's main, which
+    run_all.main runs in a child process: test_run_all_watch_score_run_use)."""
+    code = use.main([str(a) for a in argv])
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -3846,14 +3850,14 @@ def test_use_help_lists_examples(capsys):
 
 
 # ----------------------------------------------------------------------------------------------------------
-# One command-line vocabulary (experiments/args.py, issue 97): --design, --out, --workers, help with examples
+# One command-line vocabulary (runkit/args.py, experiments/args.py; issue 97): --design, --out, --workers, help with examples
 # ----------------------------------------------------------------------------------------------------------
 COMMAND_LINES = [   # (the module holding a file's main, its name, argv); [] = run with no argument
     ("experiments.ballu_bench", "main", []), ("experiments.ballu_bench", "main", ["bench", "--help"]),
     ("experiments.ballu_bench", "main", ["strip", "--help"]),
     ("ppo", "_main", []), ("ppo", "_main", ["bench", "--help"]),
-    ("ges", "main", []), ("ges", "main", ["demo", "--help"]), ("ges", "main", ["sweep", "--help"]),
-    ("ges", "main", ["bench", "--help"]),
+    ("experiments.ges_demo", "main", []), ("experiments.ges_demo", "main", ["demo", "--help"]),   # ges.py's (a child)
+    ("experiments.ges_demo", "main", ["sweep", "--help"]), ("experiments.ges_demo", "main", ["bench", "--help"]),
     ("tpe", "main", []), ("tpe", "main", ["demo", "--help"]), ("tpe", "main", ["bench", "--help"]),
     ("experiments.use", "main", ["--help"]), ("experiments.use", "main", ["watch", "--help"]),
     ("experiments.use", "main", ["score", "--help"]),
@@ -3889,6 +3893,111 @@ def test_every_command_line_help_lists_an_example(module, fn, argv, capsys):
         assert cmd in said, (cmd, said)
     options = " ".join(out.split("examples:\n")[0].split())
     assert "--workers WORKERS" not in options or "default: every core" in options
+
+
+LIBRARY = ("ballu.py", "ppo.py", "ges.py", "tpe.py", "codesign", "report", "runkit")   # the tools: run_all, experiments/
+
+
+def project_imports(path: str, here: str) -> set:
+    """The project modules a file imports, lazy imports and importlib.import_module("...") included (read with
+    ast, not by importing: an import inside a function counts)."""
+    names, tree = set(), __import__("ast").parse(open(path).read())
+    for node in __import__("ast").walk(tree):
+        kind = type(node).__name__
+        if kind == "Import":
+            names |= {a.name for a in node.names}
+        elif kind == "ImportFrom" and node.module and not node.level:
+            names |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+        elif kind == "Call" and getattr(node.func, "attr", getattr(node.func, "id", "")) in ("import_module",
+                                                                                            "__import__"):
+            names |= {a.value for a in node.args[:1] if isinstance(getattr(a, "value", None), str)}
+    def module(n):   # a.b names the file a/b.py, else the package a's __init__.py; a top-level file a.py
+        parts = n.split(".")
+        for k in range(len(parts), 0, -1):
+            f = os.path.join(here, *parts[:k])
+            if os.path.isfile(f + ".py"):
+                return ".".join(parts[:k])
+            if os.path.isfile(os.path.join(f, "__init__.py")):
+                return ".".join(parts[:k])
+        return None
+    return {m for m in map(module, names) if m}
+
+
+def project_files(here: str) -> dict:
+    """{module name: path} of every project module (top-level files and packages, tests and docs/ left out)."""
+    out = {}
+    for f in sorted(glob.glob(os.path.join(here, "*.py")) + glob.glob(os.path.join(here, "*", "*.py"))):
+        rel = os.path.relpath(f, here)
+        if rel.startswith(("test_", "docs")):
+            continue
+        name = rel[:-3].replace(os.sep, ".")
+        out[name[:-len(".__init__")] if name.endswith(".__init__") else name] = f
+    return out
+
+
+def test_library_imports_no_tool():
+    """No module of the library (ballu, ppo, ges, tpe, codesign/, report/, runkit/) imports experiments/ or run_all,
+    not even lazily: a library file knows nothing of the tools built on it (issue 112)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    files = project_files(here)
+    lib = {m: f for m, f in files.items() if any(m == x[:-3] or m.split(".")[0] == x for x in LIBRARY)}
+    assert {"ballu", "ges", "ppo", "tpe", "codesign.policies", "report.figures", "runkit.args"} <= set(lib)
+    bad = {m: sorted(i for i in project_imports(f, here) if i.split(".")[0] in ("experiments", "run_all"))
+           for m, f in lib.items()}
+    assert not {m: i for m, i in bad.items() if i}
+
+
+def test_project_has_no_import_circle():
+    """No import circle among the project's modules, lazy imports included (a depth-first search for a back edge)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    files = project_files(here)
+    graph = {m: project_imports(f, here) - {m} for m, f in files.items()}
+    state, path = {}, []
+    def visit(m):
+        state[m] = "open"
+        path.append(m)
+        for n in sorted(graph.get(m, ())):
+            if state.get(n) == "open":
+                raise AssertionError("import circle: " + " -> ".join(path[path.index(n):] + [n]))
+            if n not in state:
+                visit(n)
+        path.pop()
+        state[m] = "done"
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+
+
+NOT_NUMBERS = {   # modules the hashed files import that make no number: what each does instead
+    "runkit": "the package's docstring", "runkit.args": "command lines", "runkit.files": "atomic writes, reads",
+    "runkit.logs": "reads the training log", "runkit.plan": "--plan's arithmetic and the rate jobs' timing",
+    "runkit.pool": "executors (test_ges_process_pool_equals_serial: any gives the same numbers)",
+    "runkit.progress": "progress lines"}
+
+
+def test_code_hash_covers_every_file_that_makes_numbers():
+    """run_all.HASHED_FILES holds every project module its files import, lazy imports included, but those of
+    NOT_NUMBERS: a new module that makes numbers must join the hash (or say here why it makes none)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    files = project_files(here)
+    hashed = {f[:-3].replace("/", ".") for f in run_all.HASHED_FILES}
+    seen, todo = set(), sorted(hashed)
+    while todo:
+        m = todo.pop()
+        if m not in seen:
+            seen.add(m)
+            todo += sorted(project_imports(files[m], here))
+    assert seen - hashed - set(NOT_NUMBERS) == set()
+    assert "runkit.box" in hashed and set(NOT_NUMBERS) <= seen   # no stale entry
+
+
+def test_run_all_watch_score_run_use(tmp_path):
+    """`python run_all.py score ...` runs experiments/use.py's command line (in a child process, from any folder):
+    its one-line error and exit code 2 on an unknown method."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    p = subprocess.run([sys.executable, os.path.join(here, "run_all.py"), "score", QUICK_RUN, "nope", "obstacle-d2"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and p.stderr.startswith("run_all.py: error: "), p.stderr
 
 
 def test_top_level_files_run_bare_print_help():

@@ -41,6 +41,8 @@ from typing import Callable
 import numpy as np
 from scipy.special import ndtr, ndtri
 
+from runkit.files import write_json   # atomic: a crash never leaves half a study file
+
 FILE_FORMAT = "tpe-study-v1"
 
 
@@ -357,12 +359,8 @@ class TPE:
                 "highs": self.highs.tolist(), "names": self.names, "config": asdict(self.config)}
 
     def _save(self, path: str):
-        """Atomic write (tmp + os.replace): a crash never leaves half a file."""
-        data = self._header() | {"trials": [t.to_json() for t in self.trials]}
-        tmp = f"{path}.tmp"
-        with open(tmp, "w") as fh:
-            json.dump(data, fh, indent=1)
-        os.replace(tmp, path)
+        """Atomic write (runkit.files.write_json): a crash never leaves half a file."""
+        write_json(path, self._header() | {"trials": [t.to_json() for t in self.trials]})
 
     def _load(self, path: str):
         """Resume: the file must describe the same study, else its trials would
@@ -511,8 +509,8 @@ COMMANDS = """tpe.py -- a Tree-structured Parzen Estimator; its command line tri
 
 
 def main(argv=None) -> int:
-    """`python tpe.py demo | bench` (experiments/args.py: the command lines' vocabulary, imported when run)."""
-    from experiments import args
+    """`python tpe.py demo | bench` (runkit/args.py: the command lines' vocabulary)."""
+    from runkit import args
     ap = args.program("python tpe.py", COMMANDS)
     sub = ap.add_subparsers(dest="cmd", required=True)
     args.command(sub, "demo", "best Branin value found by TPE vs random search (same budget, same seeds)", COMMANDS)

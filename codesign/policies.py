@@ -277,8 +277,7 @@ def load_ges_ckpt(ckpt: str, preset: Preset):
 def derive_seed(seed: int, *names) -> int:
     """A seed for one consumer (a policy, a GES run, a TPE study), derived from --seed and stable names, so
     results do not depend on the order in which things run."""
-    keys = [zlib.crc32(str(n).encode()) for n in names]
-    return int(np.random.SeedSequence([seed, *keys]).generate_state(1)[0] % (2 ** 31))
+    return ges.seed_for(seed, *(zlib.crc32(str(n).encode()) for n in names)) % 2 ** 31   # names as CRC-32 keys
 
 
 def ckpt_steps(path: str) -> int:

@@ -1,5 +1,5 @@
-"""experiments/args.py -- the one command-line vocabulary of run_all.py, ballu.py, ppo.py, ges.py, tpe.py and
-experiments/ (issue 97): every command line takes its shared flags and its help from here.
+"""experiments/args.py -- the experiments' command-line vocabulary: --design (design_arg, full_design) on top of
+runkit/args.py's program, commands, --help and --workers (re-exported here), the vocabulary of every command line.
 
     --design D    a design by named values, `gcr=0.86,spcf=0.008` (names not given: the space's fixed values, else
                   the baseline's; `l` sets both legs), or by name: `baseline` (Table I), `optimum` (Sec. V-C)
@@ -9,23 +9,21 @@ experiments/ (issue 97): every command line takes its shared flags and its help 
     --fresh       delete this command's earlier results and start over (run_all.py)
     --seed S      every random draw derives from it
 
-A command line is a program with commands (`python ges.py demo --out DIR`); its --help lists them, each with an
-example (the example lines of its module docstring), and run with no argument it prints that help [ours].
-The library modules import this only inside their command line: a Dask worker gets ballu.py, ppo.py, ges.py and
-tpe.py without experiments/ (run_all.PROJECT_FILES).
+No library module imports this (a tool built on them): ppo.py and tpe.py take their command lines from
+runkit/args.py; ballu.py's and ges.py's run experiments/ballu_bench.py and experiments/ges_demo.py in a child
+process (runkit.args.delegate).
 """
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from dataclasses import dataclass
 
 import numpy as np
 
+from runkit.args import (WORKERS, add_workers, command, delegate, examples, legacy, parse, positive,  # noqa: F401
+                         program)   # the generic vocabulary, re-exported for experiments/
 from runkit.files import BadInput
-
-WORKERS = os.cpu_count() or 1   # --workers' default everywhere: every core, as run_all.py [ours]
 
 
 class BadArg(BadInput):
@@ -35,7 +33,7 @@ class BadArg(BadInput):
 # ----------------------------------------------------------------------------------------------------------
 # --design: named values or a name, on a design space (design_arg) or on its own (full_design)
 # ----------------------------------------------------------------------------------------------------------
-# ballu is imported where a design is read, not here: ges.py's and tpe.py's command lines know no robot
+# ballu is imported where a design is read, not here: ges_demo's and same_results' command lines know no robot
 OPTIMUM = {"gcr": 0.88, "spcf": 0.008}   # [paper] Sec. V-C, GES's optimum on the obstacle (D2)
 NAMES = ("baseline", "optimum")
 
@@ -140,66 +138,3 @@ def full_design_type(text: str) -> np.ndarray:
         return full_design(text)
     except BadArg as e:
         raise argparse.ArgumentTypeError(str(e)) from None
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Shared flags and help: a program with commands, each with an example
-# ----------------------------------------------------------------------------------------------------------
-def positive(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer >= 1")
-    return int(text)
-
-
-def add_workers(p, what: str = "worker processes", kind=int) -> None:
-    p.add_argument("--workers", type=kind, default=WORKERS, help=f"{what} (default: every core, {WORKERS} here)")
-
-
-def examples(doc: str, command: str | None = None) -> str:
-    """--help's epilog: the docstring's example lines (indented, `python FILE` or `python -m MODULE`), those of
-    `command` (the word after the program) if given."""
-    lines = [s for s in doc.splitlines() if s.startswith("    python ")]
-    return "examples:\n" + "\n".join(s for s in lines if command is None or _command_of(s) == command)
-
-
-def _command_of(line: str) -> str:
-    words = line.split()
-    at = 3 if words[1] == "-m" else 2
-    return words[at] if len(words) > at else ""
-
-
-def program(prog: str, doc: str, description: str | None = None) -> argparse.ArgumentParser:
-    """A command line whose --help ends with the docstring's examples."""
-    return argparse.ArgumentParser(prog=prog, description=description or doc.strip().splitlines()[0],
-                                   formatter_class=argparse.RawDescriptionHelpFormatter, epilog=examples(doc))
-
-
-def command(sub, name: str, what: str, doc: str) -> argparse.ArgumentParser:
-    """Command `name` of a program (sub: its add_subparsers()), its --help ending with the examples naming it."""
-    return sub.add_parser(name, help=what, description=what.replace("%%", "%"), epilog=examples(doc, name),
-                          formatter_class=argparse.RawDescriptionHelpFormatter)   # help, not description, %-formats
-
-
-def parse(ap: argparse.ArgumentParser, argv=None, old: dict | None = None) -> argparse.Namespace:
-    """argv parsed by `ap`. No argument: the help (the commands, each with an example), exit 0 -- a bare command
-    starts nothing [ours]. `old`: the flags legacy() rewrites."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    if not argv:
-        ap.print_help()
-        raise SystemExit(0)
-    return ap.parse_args(legacy(argv, old or {}, ap.prog))
-
-
-def legacy(argv: list, old: dict, prog: str) -> list:
-    """argv with the first flag of `old` rewritten to the command it became, with one line on stderr naming the
-    new form. old: {"--demo": ("demo", True)}: `--demo DIR` is now `demo --out DIR` (True: its value is --out)."""
-    for i, a in enumerate(argv):
-        flag, eq, value = a.partition("=")
-        if flag in old:
-            cmd, takes = old[flag]
-            if takes and not eq:
-                value = argv[i + 1] if i + 1 < len(argv) else ""
-            new = [cmd, *(["--out", value] if takes else []), *argv[:i], *argv[i + 1 + (takes and not eq):]]
-            print(f"{prog}: {flag} is deprecated: use {prog} {' '.join(new)}", file=sys.stderr)
-            return new
-    return argv

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from experiments import args
-from ges import (Box, GESConfig, GESResult, SerialExecutor, _atomic_json, coverage, rng_for, route, routed_evaluator,
-                 run_ges)
+from ges import Box, GESConfig, GESResult, SerialExecutor, coverage, rng_for, route, routed_evaluator, run_ges
 from report.figures import plot_territories
+from runkit.files import write_json
 
 # ---------------------------------------------------------------------------------------------------------
 # 1. Synthetic landscape: a cheap stand-in for BALLU+PPO (tests, the demo)
@@ -71,7 +71,7 @@ class PlantedLandscape:
             pi /= pi.sum()
             p = p + self.lr * pi * (qbar - pi @ qbar)  # d/dp of sum_b softmax(p)_b qbar_b
             p = p if self.cap is None else np.clip(p, -self.cap, self.cap)
-        _atomic_json(ckpt_out, {"p": p.tolist(), "k": k, "round": round})
+        write_json(ckpt_out, {"p": p.tolist(), "k": k, "round": round})
 
     def score(self, k, ckpt, designs):
         p = self.policy(ckpt)

@@ -218,7 +218,7 @@ def fig_ksens(ks: dict, path: str) -> str:
     m, sd = [ks[str(k)]["mean"] for k in K], [ks[str(k)]["std"] for k in K]
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.errorbar(K, m, yerr=sd, fmt="o-", capsize=3, label="ours (mean +- std over test designs)")
-    if "auto" in ks:   # adaptive K (ges.py section 9): its mean as a line, marked at the K it ended with
+    if "auto" in ks:   # adaptive K (ges.py section 8): its mean as a line, marked at the K it ended with
         a = ks["auto"]
         ax.axhline(a["mean"], color="purple", ls=":", lw=1)
         ax.plot([a["final_K"]], [a["mean"]], "s", color="purple", label=f"adaptive K (ends at K={a['final_K']})")
@@ -278,7 +278,7 @@ def plot_territories(history: dict, path: str, background: Callable | None = Non
     lo, hi, d = space.lo, space.hi, space.d
     pairs = [(0, 1)] if d == 2 else [(i, j) for i in range(d) for j in range(i + 1, d)]
     snaps = _snapshots(len(rounds))
-    ids_of = lambda h: h.get("ids", list(range(len(h["mu"]))))          # noqa: E731  (ges.py section 9)
+    ids_of = lambda h: h.get("ids", list(range(len(h["mu"]))))          # noqa: E731  (ges.py section 8)
     trained_of = lambda h: h.get("ids_trained", ids_of(h))              # noqa: E731  the winners' index space
     fig = Figure(figsize=(3.3 * (len(snaps) + 1), 3.1 * len(pairs) + 0.4), layout="constrained")
     axes = fig.subplots(len(pairs), len(snaps) + 1, squeeze=False)

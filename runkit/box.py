@@ -52,6 +52,10 @@ class Box:
         """Unit cube -> physical."""
         return self.lo + np.asarray(x, dtype=float) * (self.hi - self.lo)
 
+    def from_unit_scale(self, s) -> np.ndarray:
+        """Unit-cube lengths (a territory's sigma) -> physical: scaled per axis, not shifted."""
+        return np.asarray(s, dtype=float) * (self.hi - self.lo)
+
     def validate(self, theta) -> np.ndarray:
         """Return theta as an (n, d) float array, or raise ValueError naming the offending parameter."""
         arr = np.asarray(theta, dtype=float)

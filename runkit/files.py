@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import os
 import warnings
+from contextlib import contextmanager
 
 from runkit.progress import say
 
@@ -12,13 +13,29 @@ class BadInput(Exception):
     """A problem with the command line or the output folder: reported in one line, exit code 2."""
 
 
-def write_json(path: str, obj) -> None:
-    """Atomic write (tmp + replace): a killed run never leaves half a file."""
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+@contextmanager
+def atomic(path: str, mode: str = "w", newline: str | None = None, durable: bool = False):
+    """The project's one atomic write: `with atomic(path) as fh:` writes path.tmp<pid>, then os.replace puts it on
+    path, so a killed run never leaves half a file (a failed write leaves neither). durable: fsync first (a power
+    cut too)."""
     tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=1)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, mode, newline=newline) as fh:
+            yield fh
+            if durable:
+                fh.flush()
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def write_json(path: str, obj, indent: int | None = 1, durable: bool = False) -> None:
+    """JSON written atomically (atomic), its folder made if missing."""
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    with atomic(path, durable=durable) as fh:
+        json.dump(obj, fh, indent=indent)
 
 
 def read_json(path: str):

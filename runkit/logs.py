@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from runkit.files import redo_if_damaged
+from runkit.files import atomic, redo_if_damaged
 
 
 def read_log(path: str) -> dict:
@@ -28,10 +28,8 @@ def trim_log(csv_path: str, steps: int) -> None:
         return
     with open(csv_path, newline="") as fh:
         rows = list(csv.reader(fh))
-    tmp = f"{csv_path}.tmp{os.getpid()}"
-    with open(tmp, "w", newline="") as fh:
+    with atomic(csv_path, newline="") as fh:
         csv.writer(fh).writerows(rows[:1] + [r for r in rows[1:] if int(float(r[0])) <= steps])
-    os.replace(tmp, csv_path)
 
 
 def train_seconds(log_csv: str) -> float:
