@@ -49,10 +49,12 @@ import sys
 import time
 from concurrent.futures import Executor, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from typing import Callable
 
 import numpy as np
 
+from runkit import settings   # need, integer: a setting's one-line ValueError
 from runkit.box import Box   # the design box: names, bounds, the unit cube [paper, Sec. IV-B]
 from runkit.files import write_json   # atomic: a crash never leaves half a state file
 from runkit.pool import SerialExecutor   # runs each task inline: for debugging and tests
@@ -459,13 +461,8 @@ def routed_evaluator(result: GESResult, score_fn: Callable, router: str | None =
 # 6. Settings' checks; state files, history, result (all JSON; floats round-trip exactly through json's repr)
 # ---------------------------------------------------------------------------------------------------------
 def _check_config(c: GESConfig) -> None:
-    def need(name, ok, allowed):
-        if not ok:
-            raise ValueError(f"GESConfig.{name}={getattr(c, name)!r} not allowed: {allowed}")
-
-    def integer(name, least):
-        need(name, isinstance(getattr(c, name), (int, np.integer)) and getattr(c, name) >= least,
-             f"an integer >= {least}")
+    """runkit.settings' one-line ValueError for the first setting out of its range."""
+    need, integer = partial(settings.need, c), partial(settings.integer, c)
     for name in ("K", "n_probe", "probe_pool", "n_init_designs", "n_mc", "max_rounds", "fps_pool"):
         integer(name, 1)
     integer("lloyd_iters", 0)

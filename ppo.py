@@ -38,6 +38,7 @@ import torch
 import torch.nn as nn
 
 from runkit.files import atomic
+from runkit.settings import integer, need   # a bad setting: one line
 from runkit.progress import eta_s
 
 
@@ -83,6 +84,18 @@ class PPOConfig:
     load_balance_coef: float = 0.01    # [facts] load-balance loss weight
     design_dim: int = 4                # the design vector is the last 4 observation entries (ballu.py)
     ckpt_every: int = 10               # [ours] iterations between checkpoints
+
+    def __post_init__(self):   # one line naming a bad setting and what is allowed (runkit.settings)
+        for name in ("epochs", "minibatches", "num_envs", "num_steps", "moe_experts", "design_dim", "ckpt_every"):
+            integer(self, name, 1)
+        for name in ("init_std", "lr", "desired_kl", "max_lr", "clip", "max_grad_norm", "obs_clip"):
+            need(self, name, getattr(self, name) > 0, "a number > 0")
+        for name in ("entropy_coef", "max_std", "value_coef", "load_balance_coef"):
+            need(self, name, getattr(self, name) >= 0, "a number >= 0")
+        need(self, "gamma", 0 < self.gamma <= 1, "in (0, 1]")
+        need(self, "lam", 0 <= self.lam <= 1, "in [0, 1]")
+        for name in ("squash", "split_clip", "reward_norm"):
+            need(self, name, isinstance(getattr(self, name), (bool, np.bool_)), "True or False")
 
     @property
     def batch(self) -> int:

@@ -62,6 +62,7 @@ from runkit.logs import train_seconds, training_rate
 from runkit.plan import Layout, plan_seconds
 from runkit.pool import executor, side_by_side
 from runkit.progress import Progress, eta_s, round_eta, say
+from runkit.settings import need
 from runkit.stats import wins
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -154,10 +155,15 @@ class Preset:
     score_strict: bool = False
     train_strict: bool = False
 
-    def __post_init__(self):
-        bad = [c for c in self.cells if c not in CELLS]
-        if bad or not self.cells:
-            raise ValueError(f"cells={','.join(map(str, self.cells))}: each one of {','.join(CELLS)}, at least one")
+    def __post_init__(self):   # one line naming a bad setting and what is allowed (runkit.settings)
+        need(self, "cells", self.cells and set(self.cells) <= set(CELLS), f"each one of {','.join(CELLS)}, at least one")
+        need(self, "ranges", self.ranges in ("table", "facts"), "'table' (paper Table I) or 'facts' (per task)")
+        need(self, "policy_rule", self.policy_rule in ("best", "last"), "'best' or 'last' (ppo.scored_path)")
+        need(self, "ppo_start", self.ppo_start in ballu.START_LEVEL_NAMES, f"one of {ballu.START_LEVEL_NAMES}")
+        need(self, "cost_task", self.cost_task in TASKS, f"one of {TASKS}")
+        need(self, "cost_space", self.cost_space in SPACES, f"one of {SPACES}")
+        need(self, "table3_inits", self.table3_inits and set(self.table3_inits) <= set(ges.INIT_METHODS),
+             f"each one of {','.join(ges.INIT_METHODS)}, at least one")
 
     def ges_steps(self, rounds: int) -> int:
         """Control steps a GES specialist has trained after `rounds` rounds (warm start not counted): round 0's

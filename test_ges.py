@@ -3972,7 +3972,24 @@ NOT_NUMBERS = {   # modules the hashed files import that make no number: what ea
     "runkit": "the package's docstring", "runkit.args": "command lines", "runkit.files": "atomic writes, reads",
     "runkit.logs": "reads the training log", "runkit.plan": "--plan's arithmetic and the rate jobs' timing",
     "runkit.pool": "executors (test_ges_process_pool_equals_serial: any gives the same numbers)",
-    "runkit.progress": "progress lines"}
+    "runkit.progress": "progress lines", "runkit.settings": "settings' checks"}
+
+
+@pytest.mark.parametrize("item, words", [
+    ("ranges=bogus_xyz", "Preset.ranges='bogus_xyz' not allowed: 'table' (paper Table I) or 'facts'"),
+    ("policy_rule=bogus", "Preset.policy_rule='bogus' not allowed: 'best' or 'last'"),
+    ("ppo_start=up", "Preset.ppo_start='up' not allowed: one of ('task', 'spread', 'zero')"),
+    ("table3_inits=grid,nope", "Preset.table3_inits=('grid', 'nope') not allowed: each one of grid,random,fps"),
+    ("cost_space=d9", "Preset.cost_space='d9' not allowed: one of ('d2', 'd3')")])
+@pytest.mark.parametrize("then", [["--plan"], ["--only", "table1"]])
+def test_run_all_set_is_checked_before_anything_runs(item, words, then, tmp_path, capsys):
+    """Every --set value is checked before anything runs, --plan included: one line naming the field, the value as
+    typed and what is allowed (the preset checks itself: runkit.settings), exit 2, nothing written."""
+    out = tmp_path / "x"
+    assert run_all.main(["--preset", "smoke", "--set", item, "--out", str(out), "--workers", "1"] + then) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("run_all.py: error: --set ") and words in err, err
+    assert not out.exists()
 
 
 def test_code_hash_covers_every_file_that_makes_numbers():
@@ -4044,6 +4061,7 @@ def test_args_old_forms_still_work_with_a_deprecation(capsys):
     assert args.legacy(["--sweep"], old, "p") == ["sweep"] and args.legacy(["demo"], old, "p") == ["demo"]
 
 
+@pytest.mark.slow   # a pipeline run: the module's smoke_run
 def test_rerun_reuses_the_runs_baseline_policies(smoke_run, tmp_path, capsys):
     """experiments/rerun.py: a new run folder with today's code holding a finished run's baseline policies; its
     baselines stage keeps every one (not retrained: the files are untouched) and records what the run recorded."""

@@ -42,6 +42,7 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from runkit.files import write_json   # atomic: a crash never leaves half a study file
+from runkit.settings import integer, need   # a bad setting: one line
 
 FILE_FORMAT = "tpe-study-v1"
 
@@ -62,25 +63,19 @@ class TPEConfig:
     multivariate: bool = False      # False: product of 1-D mixtures; True: joint kernels
     direction: str = "minimize"     # "minimize" or "maximize" the objective
 
-    def __post_init__(self):
-        _check_int("n_startup", self.n_startup, 0)
-        _check_int("n_candidates", self.n_candidates, 1)
-        _check_int("gamma_max", self.gamma_max, 1)
-        _check_int("n_recent", self.n_recent, 1)
-        if not (0.0 < self.gamma_frac <= 1.0):
-            raise ValueError(f"gamma_frac must be in (0, 1], got {self.gamma_frac!r}")
-        if not (math.isfinite(self.prior_weight) and self.prior_weight > 0):
-            raise ValueError(f"prior_weight must be a finite number > 0, got {self.prior_weight!r}")
-        if not (math.isfinite(self.min_bw_cap) and self.min_bw_cap >= 1):
-            raise ValueError(f"min_bw_cap must be a finite number >= 1, got {self.min_bw_cap!r}")
-        if not isinstance(self.multivariate, bool):
-            raise ValueError(f"multivariate must be True or False, got {self.multivariate!r}")
-        if self.direction not in ("minimize", "maximize"):
-            raise ValueError(f"direction must be 'minimize' or 'maximize', got {self.direction!r}")
+    def __post_init__(self):   # one line naming a bad setting and what is allowed (runkit.settings)
+        for name, least in (("n_startup", 0), ("n_candidates", 1), ("gamma_max", 1), ("n_recent", 1)):
+            integer(self, name, least)
+        need(self, "gamma_frac", 0.0 < self.gamma_frac <= 1.0, "in (0, 1]")
+        need(self, "prior_weight", math.isfinite(self.prior_weight) and self.prior_weight > 0, "a finite number > 0")
+        need(self, "min_bw_cap", math.isfinite(self.min_bw_cap) and self.min_bw_cap >= 1, "a finite number >= 1")
+        need(self, "multivariate", isinstance(self.multivariate, bool), "True or False")
+        need(self, "direction", self.direction in ("minimize", "maximize"), "'minimize' or 'maximize'")
 
 
 def _check_int(name: str, value, minimum: int):
-    """Reject floats/bools early: a silently truncated count is a hard-to-see bug."""
+    """An argument (seed, n_trials, parallel) checked as runkit.settings.integer checks a setting. Reject floats/bools
+    early: a silently truncated count is a hard-to-see bug."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 

@@ -148,7 +148,8 @@ def override(preset, items: list):
             elif kind.startswith("bool"):
                 value = {"true": True, "false": False}[text.lower()]
             else:
-                value = {"int": int, "float": float, "str": str}[kind.split()[0]](text.replace("_", ""))
+                kind0 = kind.split()[0]   # 1_000 reads as 1000; a string is kept as typed
+                value = text if kind0 == "str" else {"int": int, "float": float}[kind0](text.replace("_", ""))
         except (ValueError, KeyError):
             raise BadInput(f"--set {name}={text!r}: not a value of type {kind}") from None
         if isinstance(value, float) and not 0 <= value <= 1:   # the preset's float fields are fractions
@@ -156,7 +157,10 @@ def override(preset, items: list):
         if isinstance(value, int) and not isinstance(value, bool) and value < (0 if "level" in name else 1):
             raise BadInput(f"--set {name}={text}: must be >= {0 if 'level' in name else 1}")
         changes[name] = value
-    return replace(preset, **changes), changes
+    try:
+        return replace(preset, **changes), changes   # the preset checks itself (runkit.settings.need)
+    except ValueError as e:
+        raise BadInput(f"--set {e}") from None
 
 
 def _scalar(text: str):
