@@ -12,7 +12,8 @@ Read top to bottom:
   9. command line: bench (throughput), strip --out PNG (a pump gait's motion strip): experiments/ballu_bench.py
 
 Of the project it imports only runkit/ (lanes.py: worker processes; box.py: the design box; args.py: its command
-line), none of which knows a robot: the learner (ppo.py) and the co-design (ges.py) sit on top. Physics audit and open-loop capability: experiments/ballu_capability.py.
+line), none of which knows a robot: the learner (ppo.py) and the co-design (ges.py) sit on top. Physics audit and
+open-loop capability: experiments/ballu_capability.py.
 
 Equation numbers count the paper's numbered equations in order (eq. 4 = the obstacle reward). Every choice
 says where it comes from: [paper], [facts] (the authors' code read as facts, see docs/facts.md), or [ours]

@@ -13,8 +13,9 @@ hands any design to one specialist, so an outer search (TPE) scores designs with
 Equation numbers count the paper's numbered equations in order:
   (5) space-filling objective of the initialisation, (6) probe argmax, (7) refit, (8) unnormalised f_k,
   (9) MC coverage c-hat, (10) density router. Alg. 1's lines: 1-5 initialisation, 6-19 the loop (Train 7-10,
-  Probe 11-15, Refit 16, CheckCoverage 17; the paper's text calls it 18). Provenance of every choice is marked in its docstring: [paper],
-  [facts] (docs/facts.md, the authors' code read as facts) or [ours] (the paper and the facts are silent).
+  Probe 11-15, Refit 16, CheckCoverage 17; the paper's text calls it 18). Provenance of every choice is marked in
+  its docstring: [paper], [facts] (docs/facts.md, the authors' code read as facts) or [ours] (the paper and the
+  facts are silent).
 
 This module knows nothing about BALLU or PPO. It takes two plain callables (picklable, so that the K
 specialists can run in a process pool):
@@ -149,9 +150,10 @@ def log_density(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return log_f(x, mu, sigma) - np.log(sigma).sum(axis=1)[None, :] - 0.5 * d * math.log(2 * math.pi)
 
 
-def route(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Density router [paper, eq. 10]: k* = argmax_k N(x | mu_k, Sigma_k), ties to the lower index. The argmax
-    is the same in unit and physical coordinates (the Jacobian is common to all k)."""
+def route_unit(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Density router [paper, eq. 10] on unit designs x (GESResult.route takes physical ones): k* = argmax_k
+    N(x | mu_k, Sigma_k), ties to the lower index. The argmax is the same in unit and physical coordinates (the
+    Jacobian is common to all k)."""
     return np.argmax(log_density(np.atleast_2d(x), mu, sigma), axis=1)
 
 
@@ -276,8 +278,8 @@ class GESState:
     """Where a run stands after `round` completed rounds (0: the initialisation), in unit coordinates. Saved as
     state.json after every round (section 6), so a run resumes where it stopped."""
     round: int
-    mu: np.ndarray            # (K, d) territory centres
-    sigma: np.ndarray         # (K, d) territory standard deviations (diagonal Sigma_k)
+    mu_unit: np.ndarray       # (K, d) territory centres, unit coordinates (GESResult.mu: physical)
+    sigma_unit: np.ndarray    # (K, d) territory standard deviations (diagonal Sigma_k), unit coordinates
     eta: list                 # eta_k: the (n_k, d) designs specialist k holds (its seeds and the probes it won)
     ckpt: list                # each specialist's last checkpoint, relative to run_dir (None before round 0)
     done: bool                # covered (or at the round cap): the loop ends
@@ -285,11 +287,11 @@ class GESState:
     ids: list                 # each specialist's id: its index with a fixed K (adaptive K retires some)
     adapt: dict | None = None     # adaptive K's bookkeeping (section 8): wait, next_id, born, parent, strikes
     task_seconds: list = field(default_factory=list)   # per round, each train and probe task's own seconds
-    final: bool = False       # the final territories trained on (GESConfig.final_train)
+    final_trained: bool = False   # the final territories trained on (GESConfig.final_train)
 
     @property
     def K(self) -> int:
-        return len(self.mu)
+        return len(self.mu_unit)
 
 
 def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) -> GESState:
@@ -321,7 +323,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     ckpt, train_s = train(space, train_fn, run_dir, seed, executor, state)   # Train (Alg. 1 lines 7-10)
     # Probe (lines 11-15, eq. 6): F designs near the 2-sigma borders; every specialist scores every one and the
     # best scorer wins it, ties to the lower index [facts]. Adaptive K's checks share the specialists' one call.
-    probes = sample_probes(state.mu, state.sigma, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
+    probes = sample_probes(state.mu_unit, state.sigma_unit, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
                            (config.band_lo, config.band_hi))
     checks = draw_checks(space, config, seed, state)   # section 8; none with a fixed K
     scores, probe_s = score_all(executor, score_fn, run_dir, ids, ckpt,
@@ -331,7 +333,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     # Refit (line 16, eq. 7): each territory to all the designs it holds. CheckCoverage (line 17, eqs. 8-9).
     mu, sigma = refit_all(eta, config.var_floor)
     cov = coverage(mu, sigma, points, config.tau)
-    new = replace(state, round=t + 1, mu=mu, sigma=sigma, eta=eta, ckpt=ckpt,
+    new = replace(state, round=t + 1, mu_unit=mu, sigma_unit=sigma, eta=eta, ckpt=ckpt,
                   done=bool(t + 1 >= config.max_rounds or cov >= config.target_coverage),
                   task_seconds=state.task_seconds + [{"train": train_s, "probe": probe_s}])
     events = None
@@ -344,7 +346,8 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
 def train(space, train_fn, run_dir, seed, executor, state: GESState) -> tuple[list, list]:
     """Train (Alg. 1 lines 7-10): each specialist on designs from its own territory, warm-started from its last
     checkpoint [paper]; (checkpoints, each task's seconds)."""
-    samplers = [GaussianSampler(state.mu[k], state.sigma[k], space, seed_for(seed, TRAIN, state.round, state.ids[k]))
+    samplers = [GaussianSampler(state.mu_unit[k], state.sigma_unit[k], space,
+                                seed_for(seed, TRAIN, state.round, state.ids[k]))
                 for k in range(state.K)]
     return train_all(executor, train_fn, run_dir, state.round, state.ids, samplers, state.ckpt)
 
@@ -355,7 +358,7 @@ def train_final(space, train_fn, run_dir, seed, executor, state: GESState) -> GE
     The last history entry keeps the new checkpoints (its territories are unchanged)."""
     ckpt, train_s = train(space, train_fn, run_dir, seed, executor, state)
     last = dict(state.history[-1], ckpt=list(ckpt), final_train=True)
-    return replace(state, ckpt=ckpt, final=True, history=state.history[:-1] + [last],
+    return replace(state, ckpt=ckpt, final_trained=True, history=state.history[:-1] + [last],
                    task_seconds=state.task_seconds + [{"train": train_s, "probe": []}])
 
 
@@ -378,7 +381,7 @@ def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
         say(f"GES init: K={config.K} d={space.d} ({config.init}), coverage {state.history[0]['coverage']:.1%}")
     elif not state.done:
         say(f"GES resume: {run_dir} after round {state.round}")
-    own = executor is None and (not state.done or (config.final_train and not state.final))
+    own = executor is None and (not state.done or (config.final_train and not state.final_trained))
     executor = ProcessPoolExecutor(max_workers=os.cpu_count()) if own else executor
     start = time.time()
     try:
@@ -389,7 +392,7 @@ def run_ges(space: Box, train_fn: Callable, score_fn: Callable, run_dir: str,
             adapt = "".join(f"  {e['kind']} {e['id']}->{e.get('into', e.get('child'))}" for e in h.get("events", []))
             say(f"round {h['round']:2d}/{config.max_rounds}  coverage {h['coverage']:6.1%}  wins {h['wins']}  "
                 + (f"K {len(h['mu'])}{adapt}  " if config.adaptive else "") + f"elapsed {time.time() - start:7.1f}s")
-        if config.final_train and not state.final:
+        if config.final_train and not state.final_trained:
             state = train_final(space, train_fn, run_dir, seed, executor, state)
             _save_state(run_dir, space, config, seed, state)
             say(f"final training on the final territories  elapsed {time.time() - start:7.1f}s")
@@ -422,7 +425,7 @@ class GESResult:
 
     def route(self, theta) -> np.ndarray:
         """Density router (eq. 10) on physical designs -> specialist indices (n,)."""
-        return route(self.space.to_unit(self.space.validate(theta)), self.mu_unit, self.sigma_unit)
+        return route_unit(self.space.to_unit(self.space.validate(theta)), self.mu_unit, self.sigma_unit)
 
 
 class RoutedEvaluator:
@@ -504,8 +507,9 @@ def history_entry(space, state: GESState, cov: float, probes, winner, trained: l
     """Entry r (completed rounds; 0 = initialisation): the territories after refit r, round r-1's probes, their
     winners (indices into `trained`) and every trained specialist's score of each (`probe_scores`: ties too), and
     the round's checkpoints; adaptive K adds the ids, merges and splits."""
-    entry = {"round": state.round, "coverage": cov, "mu_unit": state.mu.tolist(), "sigma_unit": state.sigma.tolist(),
-             "mu": space.from_unit(state.mu).tolist(), "sigma": space.from_unit_scale(state.sigma).tolist(),
+    entry = {"round": state.round, "coverage": cov, "mu_unit": state.mu_unit.tolist(),
+             "sigma_unit": state.sigma_unit.tolist(),
+             "mu": space.from_unit(state.mu_unit).tolist(), "sigma": space.from_unit_scale(state.sigma_unit).tolist(),
              "wins": [int(w) for w in np.bincount(winner, minlength=len(trained))],
              "n_designs": [len(e) for e in state.eta],
              "probes_unit": np.asarray(probes).tolist(), "winner": [int(w) for w in winner],
@@ -521,13 +525,13 @@ def _history_doc(space, config, seed, entries) -> dict:
 
 def _state_doc(state: GESState) -> dict:
     """state.json's fields, in the order earlier versions wrote them (the initialisation's differs)."""
-    doc = {"round": state.round, "mu": state.mu.tolist(), "sigma": state.sigma.tolist(),
+    doc = {"round": state.round, "mu": state.mu_unit.tolist(), "sigma": state.sigma_unit.tolist(),
            "eta": [e.tolist() for e in state.eta], "ckpt": list(state.ckpt), "done": state.done}
     adapt = {} if state.adapt is None else {"ids": list(state.ids), **state.adapt}
     if state.round == 0:
         return {**doc, "history": state.history, **adapt}
     return {**doc, **adapt, "history": state.history, "task_seconds": state.task_seconds,
-            **({"final": True} if state.final else {})}
+            **({"final": True} if state.final_trained else {})}
 
 
 def _state_of(doc: dict) -> GESState:
@@ -577,8 +581,8 @@ def _save_state(run_dir, space, config, seed, state: GESState) -> None:
 
 
 def _result(run_dir, space, config, seed, state: GESState) -> GESResult:
-    return GESResult(space, config, seed, run_dir, state.mu, state.sigma, space.from_unit(state.mu),
-                     space.from_unit_scale(state.sigma),
+    return GESResult(space, config, seed, run_dir, state.mu_unit, state.sigma_unit, space.from_unit(state.mu_unit),
+                     space.from_unit_scale(state.sigma_unit),
                      [os.path.join(run_dir, c) if c else None for c in state.ckpt],
                      _history_doc(space, config, seed, state.history), state.round, state.history[-1]["coverage"],
                      float(sum(sum(r["train"]) + sum(r["probe"]) for r in state.task_seconds)), list(state.ids))
@@ -647,7 +651,8 @@ def draw_checks(space: Box, config: GESConfig, seed: int, state: GESState) -> np
     """The round's checks, (K, n_check, d) unit designs drawn from each territory; (K, 0, d) with a fixed K."""
     if not config.adaptive:
         return np.zeros((state.K, 0, space.d))
-    return np.stack([sample_clipped(state.mu[k], state.sigma[k], rng_for(seed, CHECK, state.round, i), config.n_check)
+    return np.stack([sample_clipped(state.mu_unit[k], state.sigma_unit[k], rng_for(seed, CHECK, state.round, i),
+                                    config.n_check)
                      for k, i in enumerate(state.ids)])
 
 
@@ -661,7 +666,7 @@ def adapt_k(new: GESState, checks: np.ndarray, check_scores: np.ndarray, config:
             "next_id": a.get("next_id", K), "events": [], "born": dict(a.get("born", {})),
             "parent": dict(a.get("parent", {})), "strikes": dict(a.get("strikes", {}))}
     capped = r >= config.max_rounds
-    terr = merge(terr, S, config, r, final=capped)   # at the cap, no more training: the young are judged too
+    terr = merge(terr, S, config, r, capped=capped)   # at the cap, no more training: the young are judged too
     mu, sigma = refit_all(terr["eta"], config.var_floor)
     cov = coverage(mu, sigma, points, config.tau)
     # the target coverage ends a run only once every split is tested (no challenger is young)
@@ -672,7 +677,7 @@ def adapt_k(new: GESState, checks: np.ndarray, check_scores: np.ndarray, config:
         mu, sigma = refit_all(terr["eta"], config.var_floor)
         cov = coverage(mu, sigma, points, config.tau)
     adapt = {k: terr[k] for k in ("wait", "next_id", "born", "parent", "strikes")}
-    return (replace(new, mu=mu, sigma=sigma, eta=terr["eta"], ckpt=terr["ckpt"], done=done, ids=terr["ids"],
+    return (replace(new, mu_unit=mu, sigma_unit=sigma, eta=terr["eta"], ckpt=terr["ckpt"], done=done, ids=terr["ids"],
                     adapt=adapt), cov, terr["events"])
 
 
@@ -686,13 +691,13 @@ def young(terr: dict, config: GESConfig, r: int) -> set:
     return {k for k, i in enumerate(terr["ids"]) if r - terr["born"].get(str(i), -10 ** 6) < config.challenge_rounds}
 
 
-def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int, final: bool = False) -> dict:
+def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int, capped: bool = False) -> dict:
     """Retire each specialist whose territory another serves as well [ours; X-means' / G-means' merge-back,
     made on scores]: j goes when some other specialist i loses little on j's checks design by design,
     mean_c max(S[j, j, c] - S[i, j, c], 0) <= merge_tol x scale. The absorber (the i of the smallest loss)
     takes j's designs and keeps its checkpoint. Smallest losses first; a specialist absorbed or absorbing this
     round is not merged again, and K stays >= K_min. Every specialist, the first K too, is judged only after
-    challenge_rounds rounds of its own training, or at the round cap (final: no more training)."""
+    challenge_rounds rounds of its own training, or at the round cap (capped: no more training)."""
     K, scale = len(S), score_scale(S)
     cands = []
     for j in range(K):
@@ -702,7 +707,7 @@ def merge(terr: dict, S: np.ndarray, config: GESConfig, r: int, final: bool = Fa
             cands.append((loss.min() / scale, j, others[int(np.argmin(loss))]))
     gone, absorbers, events = set(), set(), list(terr["events"])
     # a specialist (and its pair) is judged only after challenge_rounds rounds of its own training, or at the cap
-    fresh = set() if final else young(terr, config, r)
+    fresh = set() if capped else young(terr, config, r)
     eta = list(terr["eta"])
     for gap, j, i in sorted(cands, key=lambda c: (c[0], -c[1])):   # ties: the younger goes
         if gap > config.merge_tol or K - len(gone) <= config.K_min:

@@ -385,8 +385,7 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
             noise_seed = int(st.rng.integers(2 ** 31))
             buf, obs, info, finished = rollout(kind, st.policy, st.norm, env, obs, T, cfg, noise_seed)
             # GAE: advantages and returns over the (T, N) rollout
-            with torch.no_grad():   # bootstrap value of the episodes the rollout cut off
-                last_value = st.policy.value(torch.from_numpy(st.norm(obs))).numpy()
+            last_value = value_of(st.policy, st.norm, obs)   # bootstrap of the episodes the rollout cut off
             rew = scale_rewards(buf, acc, st.ret_norm, cfg)
             adv, ret = gae(rew, buf["val"], buf["done"], last_value, cfg.gamma, cfg.lam)
             # PPO update: epochs of minibatches from the flattened rollout, the rate following the KL
@@ -412,6 +411,12 @@ def train(kind: str, env, design_sampler, total_steps: int, ckpt: str, cfg: PPOC
 # ----------------------------------------------------------------------------------------------------------
 # 6. The loop's parts: where a run starts, the rollout, the log
 # ----------------------------------------------------------------------------------------------------------
+def value_of(policy, norm, obs) -> np.ndarray:
+    """The critic's V of raw observations (normalised here): the bootstrap of an episode a rollout cut off."""
+    with torch.inference_mode():
+        return policy.value(torch.from_numpy(norm(obs))).numpy()
+
+
 def start_run(kind, env, ckpt, init_ckpt, cfg, seed, start_level) -> TrainState:
     """Where a run starts: resumed from `ckpt` if it exists (random streams included: `own`), else warm-started
     from `init_ckpt` (policy, optimiser, normaliser, curriculum levels and the step count: a GES round), else
@@ -505,8 +510,7 @@ def rollout_lanes(env, policy, norm, obs, T: int, cfg: PPOConfig, noise_seed: in
         buf["obs"][t], buf["act"][t], buf["mu"][t], buf["val"][t] = o.numpy(), a, mu, v
         obs, rew, term, trunc, info = env.step(to_env(a, cfg))
         if trunc.any():   # time-limit end: bootstrap with V(final observation), kept apart from the reward
-            with torch.inference_mode():
-                buf["boot"][t][trunc] = cfg.gamma * policy.value(torch.from_numpy(norm(info["final_obs"][trunc]))).numpy()
+            buf["boot"][t][trunc] = cfg.gamma * value_of(policy, norm, info["final_obs"][trunc])
         done = term | trunc
         returns.extend(info["episode_return"][done].tolist())
         buf["rew"][t], buf["done"][t], buf["new_obs"][t] = rew, done, obs

@@ -156,7 +156,8 @@ class Preset:
     train_strict: bool = False
 
     def __post_init__(self):   # one line naming a bad setting and what is allowed (runkit.settings)
-        need(self, "cells", self.cells and set(self.cells) <= set(CELLS), f"each one of {','.join(CELLS)}, at least one")
+        need(self, "cells", self.cells and set(self.cells) <= set(CELLS),
+             f"each one of {','.join(CELLS)}, at least one")
         need(self, "ranges", self.ranges in ("table", "facts"), "'table' (paper Table I) or 'facts' (per task)")
         need(self, "policy_rule", self.policy_rule in ("best", "last"), "'best' or 'last' (ppo.scored_path)")
         need(self, "ppo_start", self.ppo_start in ballu.START_LEVEL_NAMES, f"one of {ballu.START_LEVEL_NAMES}")
@@ -364,10 +365,10 @@ def stage_table2(run: Run) -> dict:
     """Table II: every method scored on the same test designs; TPE peaks; GES head-to-head win rates."""
     out = {"design": {}, "cells": {}}
     # the "baseline design" column: the baseline policy at the baseline design; then every method's test set
-    design = [ScoreSet(run.out, run.preset, run.seed, t, "d2", "design") for t in run.tasks()]
-    units = [ScoreSet(run.out, run.preset, run.seed, t, s, m, run.main_ges(t, s) if m == "ges" else None)
+    design = [ScoreJob(run.out, run.preset, run.seed, t, "d2", "design") for t in run.tasks()]
+    units = [ScoreJob(run.out, run.preset, run.seed, t, s, m, run.main_ges(t, s) if m == "ges" else None)
              for t, s in run.cells() for m in METHODS]
-    scores = score_sets(run, design + units, "score sets")
+    scores = run_score_jobs(run, design + units, "score sets")
     for job in design:
         out["design"][job.task] = float(scores[job.key][0])
     for job in units:
@@ -634,7 +635,7 @@ def cached_scores(run: Run, key: str, compute, designs_full) -> np.ndarray:
     """Score a set of designs once (`compute(trace)` -> scores, filling `trace` as score_policy does); kept in
     scores/<key>.json with each design's per-episode final pelvis x (a resumable unit)."""
     path = run.path("scores", f"{key}.json")
-    done = redo_if_damaged(path, score_set, part=f"redoing score set {key}")
+    done = redo_if_damaged(path, read_scores, part=f"redoing score set {key}")
     if done is not None:
         return done
     trace = {}
@@ -658,7 +659,7 @@ class CellJob:
 
 
 @dataclass
-class ScoreSet(CellJob):
+class ScoreJob(CellJob):
     """One score set of the test designs as a job of the run's executor [ours]: a method's J on
     its task/space's test designs ("design": the baseline policy on the baseline design; "ges": the GES run
     `ges_run`, default the cell's main run), kept in scores/<key>.json. A job scores in its own process
@@ -683,7 +684,7 @@ class ScoreSet(CellJob):
         return cached_scores(run, key, compute, space.full(theta)).tolist()
 
 
-def score_sets(run: Run, jobs: list, label: str) -> dict:
+def run_score_jobs(run: Run, jobs: list, label: str) -> dict:
     """Score sets through the run's executor, `workers` at a time (one process each); key -> scores."""
     prog, out = Progress(label, len(jobs), every=0, parallel=run.workers), {}
     with run.pool() as ex:
@@ -709,8 +710,8 @@ def write_test_csv(run: Run, t2: dict) -> None:
 def ges_test_scores(run: Run, names: list, label: str) -> dict:
     """GES runs' routed scores on the obstacle D2 test designs (shared with Table II), one executor job each:
     run name -> scores."""
-    jobs = [ScoreSet(run.out, run.preset, run.seed, "obstacle", "d2", "ges", n) for n in names]
-    scores = score_sets(run, jobs, label)
+    jobs = [ScoreJob(run.out, run.preset, run.seed, "obstacle", "d2", "ges", n) for n in names]
+    scores = run_score_jobs(run, jobs, label)
     return {n: scores[job.key] for n, job in zip(names, jobs)}
 
 
@@ -733,7 +734,7 @@ class MatchedJob(CellJob):
         space = space_of(self.preset, self.task, self.sp)
         train_policy(policy_ckpt(run, name), "mlp", self.task, ballu.UniformDesign(space), self.steps, self.preset,
                      derive_seed(self.seed, "ppo", name), name, init_ckpt=warm)
-        return ScoreSet(self.out, self.preset, self.seed, self.task, self.sp, MATCHED)()
+        return ScoreJob(self.out, self.preset, self.seed, self.task, self.sp, MATCHED)()
 
 
 # --- TPE design searches ------------------------------------------------------------------------------------
@@ -819,7 +820,7 @@ def report(run: Run, manifest: dict) -> str:
 # ----------------------------------------------------------------------------------------------------------
 # 6. Machinery: work files and their repair, the files the code hash covers and a Dask cluster gets
 # ----------------------------------------------------------------------------------------------------------
-def score_set(path: str) -> np.ndarray:
+def read_scores(path: str) -> np.ndarray:
     return np.array(read_json(path)["scores"], dtype=float)
 
 
@@ -834,7 +835,7 @@ def repair(run: Run) -> None:
     records) is moved aside and redone, with a warning; a damaged GES run stops the run with a one-line error
     naming the file and what to do."""
     for f in sorted(glob.glob(run.path("scores", "*.json"))):
-        redo_if_damaged(f, score_set, part="it is redone when a stage needs it")
+        redo_if_damaged(f, read_scores, part="it is redone when a stage needs it")
     for f in sorted(glob.glob(run.path("tpe", "*.json"))):
         redo_if_damaged(f, tpe.read_study, "TPE study", part="it is redone when a stage needs it")
     for d in sorted(glob.glob(run.path("ges", "*", ""))):

@@ -1678,7 +1678,7 @@ def test_ges_density_router_matches_scipy():
     rng = ges.rng_for(14)
     mu, sigma, x = rng.random((5, 3)), 0.03 + 0.3 * rng.random((5, 3)), rng.random((2000, 3))
     ref = np.argmax([multivariate_normal(mu[k], np.diag(sigma[k] ** 2)).logpdf(x) for k in range(5)], axis=0)
-    np.testing.assert_array_equal(ges.route(x, mu, sigma), ref)
+    np.testing.assert_array_equal(ges.route_unit(x, mu, sigma), ref)
     np.testing.assert_allclose(ges.log_density(x, mu, sigma)[:, 2],
                                multivariate_normal(mu[2], np.diag(sigma[2] ** 2)).logpdf(x), rtol=1e-10)
 
@@ -1690,7 +1690,7 @@ def test_ges_density_router_broad_vs_narrow():
                   [0.53, 0.5],     # 1.5 sigma out of narrow: unnormalised f says broad, the density says narrow
                   [0.9, 0.9],      # far out: broad
                   [0.45, 0.1]])
-    ks = ges.route(x, mu, sigma)
+    ks = ges.route_unit(x, mu, sigma)
     ref = np.argmax([multivariate_normal(m, np.diag(s ** 2)).pdf(x) for m, s in zip(mu, sigma)], axis=0)
     np.testing.assert_array_equal(ks, ref)
     np.testing.assert_array_equal(ks, [1, 1, 0, 0])
@@ -1755,7 +1755,7 @@ def test_ges_synthetic_reaches_coverage_and_specialises(synthetic_run):
     assert all(sum(h["wins"]) == 100 for h in hist[1:])
     g = np.linspace(0, 1, 101)
     x = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    region, owner = _land().region(x), ges.route(x, res.mu_unit, res.sigma_unit)
+    region, owner = _land().region(x), ges.route_unit(x, res.mu_unit, res.sigma_unit)
     owners, shares = [], []
     for b in range(3):
         counts = np.bincount(owner[region == b], minlength=3)
@@ -2016,7 +2016,7 @@ def _region_owners(land, res):
     """Per planted region, the behaviour (argmax logit) of the specialist the router hands most of it to."""
     g = np.linspace(0, 1, 61)
     x = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    region, owner = land.region(x), ges.route(x, res.mu_unit, res.sigma_unit)
+    region, owner = land.region(x), ges.route_unit(x, res.mu_unit, res.sigma_unit)
     return [int(np.argmax(land.policy(res.ckpt[int(np.argmax(np.bincount(owner[region == b])))])))
             for b in range(len(land.sites))]
 
@@ -2803,7 +2803,7 @@ def test_run_all_ges_score_is_the_density_router(smoke_run):
     space = policies.space_of(preset, "obstacle", "d3")
     theta = space.sample_uniform(np.random.default_rng(0), 64)
     ks = res.route(theta)
-    np.testing.assert_array_equal(ges.route(res.space.to_unit(theta), res.mu_unit, res.sigma_unit), ks)
+    np.testing.assert_array_equal(ges.route_unit(res.space.to_unit(theta), res.mu_unit, res.sigma_unit), ks)
     pick = np.concatenate([np.flatnonzero(ks == k)[:1] for k in np.unique(ks)])[:3]   # one design per specialist
     J = policies.ges_J(run_dir, "obstacle", space, preset)(theta[pick])
     best = [ppo.scored_path(c) for c in res.ckpt]   # the preset's rule: each specialist's best policy
@@ -3754,7 +3754,7 @@ def test_use_ges_routes_as_ges_route():
     theta = t.space.sample_uniform(rng, 12)
     mine = [use.route(t.ges, th)[0] for th in theta]
     assert mine == t.ges.route(theta).tolist()
-    assert mine == ges.route(t.ges.space.to_unit(theta), t.ges.mu_unit, t.ges.sigma_unit).tolist()
+    assert mine == ges.route_unit(t.ges.space.to_unit(theta), t.ges.mu_unit, t.ges.sigma_unit).tolist()
     assert len(set(mine)) > 1   # the sample reaches several territories
 
 

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from experiments import args
-from ges import Box, GESConfig, GESResult, SerialExecutor, coverage, rng_for, route, routed_evaluator, run_ges
+from ges import (Box, GESConfig, GESResult, SerialExecutor, coverage, rng_for, route_unit, routed_evaluator,
+                 run_ges)
 from report.figures import plot_territories
 from runkit.files import write_json
 
@@ -198,7 +199,7 @@ def bench() -> dict:
     pts, mu, sigma = rng.random((10_000, 3)), rng.random((6, 3)), 0.05 + 0.2 * rng.random((6, 3))
     ref = _best_time(lambda: np.exp(-0.5 * (((pts - mu[0]) / sigma[0]) ** 2).sum(1)) / np.prod(sigma[0]))
     t = {"reference_one_gaussian": ref, "coverage_K6": _best_time(lambda: coverage(mu, sigma, pts)),
-         "route_K6": _best_time(lambda: route(pts, mu, sigma))}
+         "route_K6": _best_time(lambda: route_unit(pts, mu, sigma))}
     for name, s in t.items():
         print(f"{name:24s} {1e3 * s:8.3f} ms   ({s / ref:5.1f} x reference)")
     return t

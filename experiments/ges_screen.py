@@ -64,9 +64,9 @@ def prepare(run_folder: str, state: str, out: str, ges_runs: str | None, cells: 
     if ges_runs and not os.path.lexists(os.path.join(out, "ges")):   # a rerun of prepare goes on
         os.symlink(os.path.abspath(os.path.join(ges_runs, "ges")), os.path.join(out, "ges"))
     r = base_run(out, workers)
-    jobs = [run_all.ScoreSet(out, r.preset, r.seed, *c.split("-"), m, r.main_ges(*c.split("-")) if m == "ges" else None)
+    jobs = [run_all.ScoreJob(out, r.preset, r.seed, *c.split("-"), m, r.main_ges(*c.split("-")) if m == "ges" else None)
             for c in cells for m in BASES if m != "ges" or ges_runs]
-    run_all.score_sets(r, jobs, "the screen's comparison, on this machine")
+    run_all.run_score_jobs(r, jobs, "the screen's comparison, on this machine")
     write_json(os.path.join(out, "screen.json"), {"cells": list(cells), "levers": {}})
 
 
@@ -119,8 +119,8 @@ def run(work: str, lever: str, sets: list, workers: int, round0: bool = False, m
     if round0:
         reuse_round0(work, folder, r)
     run_all.run_stage(r, "ges")
-    jobs = [run_all.ScoreSet(folder, preset, r.seed, t, s, "ges", r.main_ges(t, s)) for t, s in r.cells()]
-    run_all.score_sets(r, jobs, f"lever {lever}: GES on the test designs")
+    jobs = [run_all.ScoreJob(folder, preset, r.seed, t, s, "ges", r.main_ges(t, s)) for t, s in r.cells()]
+    run_all.run_score_jobs(r, jobs, f"lever {lever}: GES on the test designs")
     if matched:
         run_all.run_stage(r, "matched")
 

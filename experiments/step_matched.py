@@ -100,9 +100,9 @@ def rescore(work: str, ges_runs: str, workers: int) -> None:
         os.symlink(os.path.abspath(os.path.join(ges_runs, "ges")), os.path.join(work, "ges"))
     man = json.load(open(os.path.join(work, "manifest.json")))
     r = run_all.Run(work, run_all.recorded_preset(man), int(man["seed"]), workers)
-    jobs = [run_all.ScoreSet(work, r.preset, r.seed, t, s, m, r.main_ges(t, s) if m == "ges" else None)
+    jobs = [run_all.ScoreJob(work, r.preset, r.seed, t, s, m, r.main_ges(t, s) if m == "ges" else None)
             for t in run_all.TASKS for s in run_all.SPACES for m in ("mlp", "ges")]
-    run_all.score_sets(r, jobs, "score sets on this machine")
+    run_all.run_score_jobs(r, jobs, "score sets on this machine")
 
 
 def keep(work: str, run_folder: str, docs: str) -> None:

@@ -191,10 +191,10 @@ def resolve(words: list, method: str | None = None, workers: int = 2) -> Target:
 
 
 def route(res, theta) -> tuple:
-    """Paper eq. 10 (ges.route): the specialist of highest Gaussian density at theta, and each one's log density
+    """Paper eq. 10 (ges.route_unit): the specialist of highest Gaussian density at theta, and each one's log density
     (unit cube). Not GESResult.route, which refuses designs outside the box, as the baseline is."""
     x = res.space.to_unit(np.atleast_2d(np.asarray(theta, float)))
-    return int(ges.route(x, res.mu_unit, res.sigma_unit)[0]), ges.log_density(x, res.mu_unit, res.sigma_unit)[0]
+    return int(ges.route_unit(x, res.mu_unit, res.sigma_unit)[0]), ges.log_density(x, res.mu_unit, res.sigma_unit)[0]
 
 
 def play(t: Target, design: Design) -> tuple:
