@@ -807,6 +807,27 @@ def test_experiments_capability_gaits_and_clearance_measure():
     assert out["peak_clearance"][0] < 0.02 and not out["blowup"][0]
 
 
+
+def test_experiments_stay_band_variants_edit_only_what_they_name():
+    """The stay-band study's robot variants: the older legs keep 2 colliders per tibia (the tibia's 13-65 %, the
+    foot at its tip), the balloon variant drops its collider only, and both restore ballu.robot_urdf after use."""
+    import xml.etree.ElementTree as ET
+    from experiments import stay_band
+    plain = ballu.robot_urdf
+    with stay_band.variant("older_legs", ballu.BalluConfig()) as cfg:
+        root = ET.fromstring(ballu.robot_urdf(BASELINE, cfg))
+    assert ballu.robot_urdf is plain and cfg == ballu.BalluConfig()
+    tibia = next(link for link in root.iter("link") if link.get("name") == "tibia_l")
+    cols = tibia.findall("collision")
+    assert len(cols) == 2 and float(cols[1].find("origin").get("xyz").split()[2]) == pytest.approx(-0.45)
+    assert float(cols[0].find("geometry/cylinder").get("length")) == pytest.approx(0.20 / 0.385 * 0.45, abs=1e-6)
+    with stay_band.variant("drag", ballu.BalluConfig()) as cfg:
+        assert cfg.drag_coef == ballu.HARDWARE_DRAG and ballu.robot_urdf is plain
+    with stay_band.variant("no_balloon_contact", ballu.BalluConfig()):
+        root = ET.fromstring(ballu.robot_urdf(BASELINE))
+    links = {link.get("name"): link for link in root.iter("link")}
+    assert not links["balloon"].findall("collision") and len(links["tibia_r"].findall("collision")) == 3
+
 # --- design spaces (paper Table I, facts per-task ranges) ---
 D2_BOX = ges.Box(("gcr", "spcf"), (0.72, 0.001), (0.90, 0.100))             # D2's Table I bounds as a plain box
 D3_BOX = ges.Box(("gcr", "spcf", "l"), (0.72, 0.001, 0.25), (0.90, 0.100, 0.55))
