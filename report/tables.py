@@ -93,7 +93,11 @@ def score_text(p) -> str:
     start = f"{p.score_start_level} (ours; facts: {facts})" if p.score_start_level is not None else facts
     probe = (f"; GES probes scored with level steps {list(p.probe_level_steps)} (ours; paper: the 20-episode J)"
              if p.probe_level_steps else "")
-    return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}"
+    rule = ("obstacle J by the strict rule (ours: an episode that does not end past x = 1.0 m goes down a level; "
+            "docs/stay_band)" if p.score_strict else "obstacle J by the facts' rule (an episode ending between "
+                                                     "x = 0.5 and 1.0 m keeps its level; strict rule: docs/stay_band)")
+    train = "; obstacle training curriculum strict (ours)" if p.train_strict else ""
+    return f"episodes per score J: {p.score_episodes} (paper: 20) from level {start}{probe}; {rule}{train}"
 
 
 def report_wall(times: dict, planned: dict, stages, command: str, rate: tuple, cal: dict | None = None) -> list:
