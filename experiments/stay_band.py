@@ -245,29 +245,88 @@ def cmd_rescore(a) -> None:
     """J of every obstacle method of each run under both rules, resumable (a JSON of finished score sets)."""
     from experiments import use
     res = json.load(open(a.out)) if os.path.exists(a.out) else {}
-    for run in a.runs:
-        for sp in ("d2", "d3"):
-            for method in METHODS:
-                try:
-                    t = use.resolve([run, method, f"obstacle-{sp}"], workers=a.workers)
-                except use.UseError as e:   # a run without that method (quick has no step-matched MLP)
-                    print(f"{run} {method} {sp}: skipped ({e})", flush=True)
-                    continue
-                designs = [args.design_arg("baseline", t.space)] if method == "baseline" else \
-                    test_designs(run, sp, t.space)
-                for rule in RULES:
-                    key = f"{run}|{sp}|{method}|{rule}"
-                    if key in res or (method == "baseline" and sp == "d3"):   # one baseline design per run
+    order = [(sp, m, run) for sp in ("d2", "d3") for m in METHODS for run in a.runs if sp == "d2" or m != "baseline"]
+    for sp, method, run in order:   # the baselines, then D2, then D3: the tables fill cell by cell across runs
+        try:
+            t = use.resolve([run, method, f"obstacle-{sp}"], workers=a.workers)
+        except use.UseError as e:   # a run without that method (quick has no step-matched MLP)
+            print(f"{run} {method} {sp}: skipped ({e})", flush=True)
+            continue
+        designs = [args.design_arg("baseline", t.space)] if method == "baseline" else test_designs(run, sp, t.space)
+        for rule in RULES:
+            key = f"{run}|{sp}|{method}|{rule}"
+            if key in res:
+                continue
+            t0 = time.time()
+            rows = use.score(t, designs, workers=a.workers, rule=rule)
+            res[key] = {"J": [r["J"] for r in rows], "x": [r["x"] for r in rows],
+                        "designs": [d.full.tolist() for d in designs]}
+            print(f"{key}: J {np.mean(res[key]['J']):.1f} cm over {len(rows)} designs, {time.time() - t0:.0f} s",
+                  flush=True)
+            with open(a.out + ".tmp", "w") as fh:
+                json.dump(res, fh)
+            os.replace(a.out + ".tmp", a.out)
+
+
+def cmd_protocol(a) -> None:
+    """J under both rules and the share of cleared episodes of PPO protocol runs' best policies
+    (experiments.ppo_protocol: FOLDER/SETTING/obstacle/seedS/result_<steps>.json), on the protocol's 12 designs
+    or (--design) one design, resumable."""
+    import ppo
+    res = json.load(open(a.out)) if os.path.exists(a.out) else {}
+    designs = protocol_designs() if a.design is None else args.full_design(a.design)[None]
+    for folder in a.folders:
+        for setting in a.settings.split(","):
+            for seed_dir in sorted(glob_dirs(os.path.join(folder, setting, "obstacle"))):
+                for m in a.milestones:
+                    path = os.path.join(seed_dir, f"result_{m}.json")
+                    if not os.path.exists(path):
                         continue
-                    t0 = time.time()
-                    rows = use.score(t, designs, workers=a.workers, rule=rule)
-                    res[key] = {"J": [r["J"] for r in rows], "x": [r["x"] for r in rows],
-                                "designs": [d.full.tolist() for d in designs]}
-                    print(f"{key}: J {np.mean(res[key]['J']):.1f} cm over {len(rows)} designs, "
-                          f"{time.time() - t0:.0f} s", flush=True)
-                    with open(a.out + ".tmp", "w") as fh:
-                        json.dump(res, fh)
-                    os.replace(a.out + ".tmp", a.out)
+                    best = os.path.join(seed_dir, json.load(open(path)).get("best_file", f"policy_{m}.pt"))
+                    pol = ppo.load_policy(best)
+                    for rule in RULES:
+                        key = f"{seed_dir}|{m}|{rule}"
+                        if key in res:
+                            continue
+                        j, x = ballu.score(pol, designs, "obstacle", workers=a.workers, final_x=True,
+                                           strict=rule == "strict")
+                        res[key] = {"J": j.tolist(), "x": x.tolist(), "policy": best}
+                        print(f"{key}: J {j.mean():.1f} cm, cleared / band / short {outcome_shares(x)}", flush=True)
+                        with open(a.out + ".tmp", "w") as fh:
+                            json.dump(res, fh)
+                        os.replace(a.out + ".tmp", a.out)
+
+
+def glob_dirs(path: str) -> list:
+    return [os.path.join(path, d) for d in os.listdir(path)] if os.path.isdir(path) else []
+
+
+def cmd_protocol_table(a) -> None:
+    """Per setting and milestone: J (facts' rule), J (strict), the cleared share of the facts' walk, mean +- SE
+    over seeds."""
+    res = json.load(open(a.protocol))
+    rows = {}
+    for key, r in res.items():
+        seed_dir, m, rule = key.split("|")
+        setting = os.path.basename(os.path.dirname(os.path.dirname(seed_dir)))
+        rows.setdefault((setting, int(m)), {}).setdefault(os.path.basename(seed_dir), {})[rule] = r
+    print("| setting | steps | seeds | J, facts' rule | J, strict | cleared (facts' walk) | cleared (strict walk) |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for (setting, m), seeds in sorted(rows.items()):
+        done = [s for s in seeds.values() if len(s) == 2]
+        cells = [mean_se([np.mean(s[r]["J"]) for s in done]) for r in RULES]
+        clear = [mean_se([100 * cleared(s[r]["x"]) for s in done]) + " %" for r in RULES]
+        print(f"| {setting} | {m:,} | {len(done)} | {cells[0]} | {cells[1]} | {clear[0]} | {clear[1]} |")
+
+
+def cleared(xs) -> float:
+    o = ballu.episode_outcome("obstacle", np.asarray(xs, dtype=float)).ravel()
+    return float(np.mean(o[o >= 0] == 2))
+
+
+def mean_se(v) -> str:
+    v = np.asarray(v, dtype=float)
+    return f"{v[0]:.1f}" if len(v) == 1 else f"{v.mean():.1f} +- {v.std(ddof=1) / np.sqrt(len(v)):.1f}"
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -408,6 +467,15 @@ def main(argv=None) -> int:
     r.add_argument("runs", nargs="+", help="run folders (test_scores.csv, policies/, ges/)")
     r.add_argument("--out", required=True, help="a JSON file; a rerun goes on where it stopped")
     args.add_workers(r)
+    pp = args.command(sub, "protocol", "PPO protocol runs' best policies under both rules", __doc__)
+    pp.add_argument("folders", nargs="+", help="ppo_protocol --out folders (SETTING/obstacle/seedS/)")
+    pp.add_argument("--settings", default="obs_code_vel,strict_train", help="settings (folders) to score")
+    pp.add_argument("--milestones", type=int, nargs="+", default=[1_000_000, 2_000_000])
+    pp.add_argument("--design", help="score on this one design (single-design runs), e.g. gcr=0.839,spcf=0.017")
+    pp.add_argument("--out", required=True, help="a JSON file; a rerun goes on where it stopped")
+    args.add_workers(pp)
+    pt = args.command(sub, "protocol-table", "J and cleared shares per setting and milestone", __doc__)
+    pt.add_argument("protocol", help="protocol's JSON")
     rt = args.command(sub, "rescore-table", "Table II, head-to-head, landscape under both rules", __doc__)
     rt.add_argument("rescore", help="rescore's JSON")
     rt.add_argument("--figures", help="a folder for Fig. 8 under both rules (one PNG per run)")
@@ -419,7 +487,7 @@ def main(argv=None) -> int:
     if bad:
         p.error(f"--variants {','.join(bad)}: each one of {', '.join(VARIANTS)}")
     {"ends": cmd_ends, "pressed": cmd_pressed, "rescore": cmd_rescore, "rescore-table": cmd_rescore_table,
-     "table": cmd_table}[a.cmd](a)
+     "protocol": cmd_protocol, "protocol-table": cmd_protocol_table, "table": cmd_table}[a.cmd](a)
     return 0
 
 
