@@ -31,6 +31,7 @@ specialists can run in a process pool):
                  run repeats an interrupted round). Its format is the trainer's business.
     score_fn(k, ckpt, designs) -> (n,) array of scores, higher is better
         designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
+                 Each design's score may not depend on the call's other designs.
 
 Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, router, refit, probes),
 3. initialisation and the run's state, 4. the GES loop (Alg. 1), 5. the routed evaluator; then the machinery:
@@ -316,19 +317,17 @@ def initial_state(space: Box, config: GESConfig, seed: int, points: np.ndarray) 
 # ---------------------------------------------------------------------------------------------------------
 def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state: GESState, points) -> GESState:
     """One pass of Alg. 1's loop (the body of lines 6-19): Train, Probe (eq. 6), Refit (eq. 7), CheckCoverage
-    (eqs. 8-9); then, with config.adaptive, section 8's merges and splits. Returns the
+    (eqs. 8-9); then adapt_k, which with config.adaptive merges and splits (section 8). Returns the
     next state; `state` is not modified. A specialist is named by its id (its index with a fixed K): its seeds
     and checkpoint files follow it when others are merged away."""
     t, K, ids = state.round, state.K, state.ids
     ckpt, train_s = train(space, train_fn, run_dir, seed, executor, state)   # Train (Alg. 1 lines 7-10)
     # Probe (lines 11-15, eq. 6): F designs near the 2-sigma borders; every specialist scores every one and the
-    # best scorer wins it, ties to the lower index [facts]. Adaptive K's checks share the specialists' one call.
+    # best scorer wins it, ties to the lower index [facts].
     probes = sample_probes(state.mu_unit, state.sigma_unit, rng_for(seed, PROBE, t), config.n_probe, config.probe_pool,
                            (config.band_lo, config.band_hi))
-    checks = draw_checks(space, config, seed, state)   # section 8; none with a fixed K
-    scores, probe_s = score_all(executor, score_fn, run_dir, ids, ckpt,
-                                space.from_unit(np.vstack([probes, checks.reshape(-1, space.d)])))
-    winner = np.argmax(scores[:, :len(probes)], axis=0)
+    scores, probe_s = score_all(executor, score_fn, run_dir, ids, ckpt, space.from_unit(probes))
+    winner = np.argmax(scores, axis=0)
     eta = [np.vstack([state.eta[k], probes[winner == k]]) for k in range(K)]
     # Refit (line 16, eq. 7): each territory to all the designs it holds. CheckCoverage (line 17, eqs. 8-9).
     mu, sigma = refit_all(eta, config.var_floor)
@@ -336,12 +335,10 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     new = replace(state, round=t + 1, mu_unit=mu, sigma_unit=sigma, eta=eta, ckpt=ckpt,
                   done=bool(t + 1 >= config.max_rounds or cov >= config.target_coverage),
                   task_seconds=state.task_seconds + [{"train": train_s, "probe": probe_s}])
-    events = None
-    if config.adaptive:   # merge a redundant specialist, split an unevenly served territory (section 8)
-        new, cov, events = adapt_k(new, checks, scores[:, len(probes):], config, points)
-    entry = history_entry(space, new, cov, probes, winner, ids, events, scores[:, :len(probes)])
+    # config.adaptive [ours, section 8]: merge a redundant specialist, split an unevenly served territory
+    new, cov, events = adapt_k(space, score_fn, run_dir, config, seed, executor, state, new, points, cov)
+    entry = history_entry(space, new, cov, probes, winner, ids, events, scores)
     return replace(new, history=state.history + [entry])
-
 
 def train(space, train_fn, run_dir, seed, executor, state: GESState) -> tuple[list, list]:
     """Train (Alg. 1 lines 7-10): each specialist on designs from its own territory, warm-started from its last
@@ -648,20 +645,25 @@ def score_all(executor, score_fn, run_dir, ids, ckpt, designs) -> tuple[np.ndarr
 # territories of the owner's mean score on its own checks (scores >= 0 assumed). Why each rule below, and the
 # study that measured them: docs/ges_adaptive/README.md, "The rules".
 def draw_checks(space: Box, config: GESConfig, seed: int, state: GESState) -> np.ndarray:
-    """The round's checks, (K, n_check, d) unit designs drawn from each territory; (K, 0, d) with a fixed K."""
-    if not config.adaptive:
-        return np.zeros((state.K, 0, space.d))
+    """The round's checks, (K, n_check, d) unit designs drawn from each territory the round started from."""
     return np.stack([sample_clipped(state.mu_unit[k], state.sigma_unit[k], rng_for(seed, CHECK, state.round, i),
                                     config.n_check)
                      for k, i in enumerate(state.ids)])
 
 
-def adapt_k(new: GESState, checks: np.ndarray, check_scores: np.ndarray, config: GESConfig, points) -> tuple:
-    """After the round's refit: merge, refit; then, unless the run is done, split and refit again. `new` is the
-    fixed-K round's next state (its eta_k and checkpoints still the trained specialists'). Returns the adapted
-    state, its coverage and the round's merge and split events."""
+def adapt_k(space, score_fn, run_dir, config, seed, executor, state: GESState, new: GESState, points, cov) -> tuple:
+    """The round's one call for adaptive K, after its refit: (new, cov, None) unchanged with a fixed K. Else the
+    trained specialists score the checks drawn from the territories `state` holds (their seconds join the probe
+    tasks'); merge, refit; then, unless the run is done, split and refit again. `new` is the fixed-K round's
+    next state (its eta_k and checkpoints still the trained specialists'). Returns the adapted state, its
+    coverage and the round's merge and split events."""
+    if not config.adaptive:
+        return new, cov, None
+    checks = draw_checks(space, config, seed, state)
     ids, r, K, a = new.ids, new.round, new.K, new.adapt
-    S = check_scores.reshape(K, K, checks.shape[1])
+    S, check_s = score_all(executor, score_fn, run_dir, ids, new.ckpt, space.from_unit(checks.reshape(-1, space.d)))
+    S = S.reshape(K, K, checks.shape[1])
+    spent = dict(new.task_seconds[-1], probe=[p + c for p, c in zip(new.task_seconds[-1]["probe"], check_s)])
     terr = {"ids": list(ids), "eta": new.eta, "ckpt": list(new.ckpt), "wait": dict(a.get("wait", {})),
             "next_id": a.get("next_id", K), "events": [], "born": dict(a.get("born", {})),
             "parent": dict(a.get("parent", {})), "strikes": dict(a.get("strikes", {}))}
@@ -678,7 +680,7 @@ def adapt_k(new: GESState, checks: np.ndarray, check_scores: np.ndarray, config:
         cov = coverage(mu, sigma, points, config.tau)
     adapt = {k: terr[k] for k in ("wait", "next_id", "born", "parent", "strikes")}
     return (replace(new, mu_unit=mu, sigma_unit=sigma, eta=terr["eta"], ckpt=terr["ckpt"], done=done, ids=terr["ids"],
-                    adapt=adapt), cov, terr["events"])
+                    adapt=adapt, task_seconds=new.task_seconds[:-1] + [spent]), cov, terr["events"])
 
 
 def score_scale(S: np.ndarray) -> float:
