@@ -5,6 +5,7 @@ Read top to bottom:
   2. running observation normalisation
   3. actor-critics: `MLPActorCritic` (e2e MLP and every GES specialist), `MoEActorCritic` (e2e MoE)
   4. GAE and the PPO update (clipped surrogate, value loss, entropy bonus, adaptive-KL learning rate)
+     4b. the options off by default (squashed actions, reward scaling, split gradient clip, std bound)
   5. the training loop: `train(...)`, each update rollout -> GAE -> PPO update -> log, curriculum, a checkpoint
      every cfg.ckpt_every updates
   6. the loop's parts: `start_run` (fresh, warm start or resume), `rollout` (here or in the env's workers),
@@ -212,15 +213,6 @@ def make_policy(kind: str, obs_dim: int, act_dim: int, cfg: PPOConfig = PPOConfi
     return POLICIES[kind](obs_dim, act_dim, cfg)
 
 
-def to_env(u, cfg: PPOConfig):
-    """The action the env gets for the Gaussian sample (or mean) u: u itself (the env clips it to its range), or
-    sigmoid(u) if `cfg.squash` [ours, an option]. Squashed, a policy whose mean is far outside [0, 1] still gets
-    a gradient (a clipped action is the same for every mean beyond the bound). PPO keeps u: the ratio
-    p_new(a) / p_old(a) of the squashed actions equals that of u (the Jacobian |da/du| cancels), and the KL of
-    the two policies is the same in u and a, so only the entropy needs the Jacobian (`entropy_bonus`)."""
-    return 1.0 / (1.0 + np.exp(-u)) if cfg.squash else u
-
-
 def gaussian_log_prob(act, mean, log_std):
     """log N(act; mean, exp(log_std)) summed over action dims: the policy's log-probability, written out
     (a torch Distribution object costs more than this arithmetic in the small-batch update)."""
@@ -248,6 +240,60 @@ def gae(rewards, values, dones, last_value, gamma: float, lam: float):
         last = delta + gamma * lam * nonterminal * last
         adv[t] = last
     return adv, adv + values
+
+
+def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.random.Generator):
+    """Several epochs of clipped-surrogate minibatch steps; the learning rate follows the KL. [facts]"""
+    n = len(batch["obs"])
+    adv = batch["adv"]
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    stats = {"kl": [], "policy_loss": [], "value_loss": [], "entropy": []}
+    mb = n // cfg.minibatches
+    for _ in range(cfg.epochs):
+        perm = torch.from_numpy(rng.permutation(n))
+        for s in range(0, mb * cfg.minibatches, mb):
+            idx = perm[s:s + mb]
+            obs, act = batch["obs"][idx], batch["act"][idx]
+            mu, log_std = policy.mean(obs), policy.log_std
+            logp = gaussian_log_prob(act, mu, log_std)
+            with torch.no_grad():   # KL(old || new) of two diagonal Gaussians, for the schedule
+                old_mu, old_std, std = batch["mu"][idx], batch["std"][idx], log_std.exp()
+                kl = (torch.log(std / old_std) + (old_std ** 2 + (old_mu - mu) ** 2)
+                      / (2 * std ** 2) - 0.5).sum(-1).mean().item()
+            if kl > 2 * cfg.desired_kl:
+                lr = max(1e-5, lr / 1.5)
+            elif 0 < kl < cfg.desired_kl / 2:
+                lr = min(cfg.max_lr, lr * 1.5)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            ratio = torch.exp(logp - batch["logp"][idx])
+            a = adv[idx]
+            policy_loss = -torch.min(ratio * a, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * a).mean()
+            value_loss = (policy.value(obs) - batch["ret"][idx]).pow(2).mean()
+            entropy = entropy_bonus(mu, log_std, act, old_mu, old_std, cfg)   # the options: section 4b
+            loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy + policy.aux_loss(obs)
+            opt.zero_grad()
+            loss.backward()
+            clip_gradients(policy, cfg)
+            opt.step()
+            bound_std(policy, cfg)
+            for k, v in (("kl", kl), ("policy_loss", policy_loss.item()), ("value_loss", value_loss.item()),
+                         ("entropy", entropy.item())):
+                stats[k].append(v)
+    return lr, {k: float(np.mean(v)) for k, v in stats.items()}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# 4b. The options [ours], each off by default (PPOConfig: squash, reward_norm, split_clip, max_std): the paper's
+#     path is each function's first branch; the update and the loop call them without a branch of their own
+# ----------------------------------------------------------------------------------------------------------
+def to_env(u, cfg: PPOConfig):
+    """The action the env gets for the Gaussian sample (or mean) u: u itself (the env clips it to its range), or
+    sigmoid(u) if `cfg.squash` [ours, an option]. Squashed, a policy whose mean is far outside [0, 1] still gets
+    a gradient (a clipped action is the same for every mean beyond the bound). PPO keeps u: the ratio
+    p_new(a) / p_old(a) of the squashed actions equals that of u (the Jacobian |da/du| cancels), and the KL of
+    the two policies is the same in u and a, so only the entropy needs the Jacobian (`entropy_bonus`)."""
+    return 1.0 / (1.0 + np.exp(-u)) if cfg.squash else u
 
 
 def scale_rewards(buf, acc, ret_norm: RunningNorm, cfg: PPOConfig) -> np.ndarray:
@@ -295,47 +341,12 @@ def clip_gradients(policy, cfg: PPOConfig):
     nn.utils.clip_grad_norm_([p for p in policy.parameters() if id(p) not in critic], cfg.max_grad_norm)
 
 
-def ppo_update(policy, opt, batch: dict, cfg: PPOConfig, lr: float, rng: np.random.Generator):
-    """Several epochs of clipped-surrogate minibatch steps; the learning rate follows the KL. [facts]"""
-    n = len(batch["obs"])
-    adv = batch["adv"]
-    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-    stats = {"kl": [], "policy_loss": [], "value_loss": [], "entropy": []}
-    mb = n // cfg.minibatches
-    for _ in range(cfg.epochs):
-        perm = torch.from_numpy(rng.permutation(n))
-        for s in range(0, mb * cfg.minibatches, mb):
-            idx = perm[s:s + mb]
-            obs, act = batch["obs"][idx], batch["act"][idx]
-            mu, log_std = policy.mean(obs), policy.log_std
-            logp = gaussian_log_prob(act, mu, log_std)
-            with torch.no_grad():   # KL(old || new) of two diagonal Gaussians, for the schedule
-                old_mu, old_std, std = batch["mu"][idx], batch["std"][idx], log_std.exp()
-                kl = (torch.log(std / old_std) + (old_std ** 2 + (old_mu - mu) ** 2)
-                      / (2 * std ** 2) - 0.5).sum(-1).mean().item()
-            if kl > 2 * cfg.desired_kl:
-                lr = max(1e-5, lr / 1.5)
-            elif 0 < kl < cfg.desired_kl / 2:
-                lr = min(cfg.max_lr, lr * 1.5)
-            for g in opt.param_groups:
-                g["lr"] = lr
-            ratio = torch.exp(logp - batch["logp"][idx])
-            a = adv[idx]
-            policy_loss = -torch.min(ratio * a, torch.clamp(ratio, 1 - cfg.clip, 1 + cfg.clip) * a).mean()
-            value_loss = (policy.value(obs) - batch["ret"][idx]).pow(2).mean()
-            entropy = entropy_bonus(mu, log_std, act, old_mu, old_std, cfg)
-            loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy + policy.aux_loss(obs)
-            opt.zero_grad()
-            loss.backward()
-            clip_gradients(policy, cfg)
-            opt.step()
-            if cfg.max_std > 0:   # bounded log-std: a projection, so the std cannot run away
-                with torch.no_grad():
-                    policy.log_std.clamp_(max=math.log(cfg.max_std))
-            for k, v in (("kl", kl), ("policy_loss", policy_loss.item()), ("value_loss", value_loss.item()),
-                         ("entropy", entropy.item())):
-                stats[k].append(v)
-    return lr, {k: float(np.mean(v)) for k, v in stats.items()}
+def bound_std(policy, cfg: PPOConfig):
+    """After each step, the action std held <= `cfg.max_std` if > 0 [ours, an option]: a projection of the
+    log-std, so the std cannot run away."""
+    if cfg.max_std > 0:
+        with torch.no_grad():
+            policy.log_std.clamp_(max=math.log(cfg.max_std))
 
 
 # ----------------------------------------------------------------------------------------------------------
