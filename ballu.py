@@ -1066,11 +1066,13 @@ class BalluEnv(_ExactResume):
     # -- physics: the hot loop -----------------------------------------------------------------------------
     def _physics_step(self):
         """One 200 Hz step: per robot, read joints and balloon, apply joint torques and balloon forces; step.
-        Knee target: the servo angle x 100/180 [facts] (slewed if `servo_slew`); hips and neck get their passive
-        damping; each world takes `substeps_fine` substeps if some joint is fast or near a limit, else `substeps`.
+        Knee target: the servo angle x 100/180 [facts] (slewed if `servo_slew`: off, the slew is unbounded);
+        hips and neck get their passive damping; each world takes `substeps_fine` substeps if some joint is fast
+        or near a limit, else `substeps`. The options off by default run beside this path (`_options`).
         Two PyBullet calls per robot to read and two to write, on the module with the client id (BulletClient's
         wrapper costs more than the calls), and plain-float arithmetic (numpy dispatch costs more at these sizes)."""
         cfg = self.cfg
+        per_robot, per_step = self._options()   # both empty by default
         get_joints, get_link, apply, control = (pybullet.getJointStates, pybullet.getLinkState,
                                                 pybullet.applyExternalForce, pybullet.setJointMotorControlArray)
         world_frame, torque_mode = pybullet.WORLD_FRAME, pybullet.TORQUE_CONTROL
@@ -1093,11 +1095,8 @@ class BalluEnv(_ExactResume):
                 force = balloon_force(self._gcr[i], self._mass[i], ls[6], cfg)
                 apply(b, BALLOON, force, ls[0], world_frame, physicsClientId=cid)
                 control(b, JOINTS, torque_mode, forces=tau, physicsClientId=cid)
-                if cfg.quirk_buoyancy_torque:
-                    pybullet.applyExternalTorque(b, BALLOON, quirk_torque(ls[1], force, cfg), world_frame,
-                                                 physicsClientId=cid)
-                if self.monitor is not None:
-                    self._applied[i] = (tau, force)
+                for option in per_robot:
+                    option(i, b, cid, ls, tau, force)
                 if adaptive and not fine:
                     fine = needs_fine_substeps(js, cfg.dt, cfg.fine_speed)
             if adaptive:
@@ -1110,8 +1109,25 @@ class BalluEnv(_ExactResume):
             pybullet.stepSimulation(physicsClientId=cid)
             self.sim_seconds += time.perf_counter() - t0   # for the benchmark's physics-only reference
             self.world_steps += 1
-        if self.monitor is not None:
-            self.monitor(self)
+        for option in per_step:
+            option(self)
+
+    def _options(self) -> tuple:
+        """The physics step's options off by default, chosen once per step: (per robot after its torques and
+        force are applied, per step after the worlds stepped). The authors' uprighting torque on the balloon
+        (`quirk_buoyancy_torque`, a QUIRK [facts]); the monitor (an audit), which reads each robot's applied knee
+        torques and balloon force."""
+        per_robot = (self._apply_quirk_torque,) if self.cfg.quirk_buoyancy_torque else ()
+        if self.monitor is None:
+            return per_robot, ()
+        return per_robot + (self._record_applied,), (self.monitor,)
+
+    def _apply_quirk_torque(self, i, b, cid, ls, tau, force):
+        pybullet.applyExternalTorque(b, BALLOON, quirk_torque(ls[1], force, self.cfg), pybullet.WORLD_FRAME,
+                                     physicsClientId=cid)
+
+    def _record_applied(self, i, b, cid, ls, tau, force):
+        self._applied[i] = (tau, force)
 
     # -- worlds --------------------------------------------------------------------------------------------
     def pause(self, lanes):
