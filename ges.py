@@ -31,7 +31,7 @@ specialists can run in a process pool):
                  run repeats an interrupted round). Its format is the trainer's business.
     score_fn(k, ckpt, designs) -> (n,) array of scores, higher is better
         designs  (n, d) float array in PHYSICAL units. Must be deterministic for exact reproducibility.
-                 Each design's score may not depend on the call's other designs.
+                 Each design's score must not depend on the call's other designs.
 
 Read top to bottom: 1. settings and randomness, 2. territories (f_k, coverage, router, refit, probes),
 3. initialisation and the run's state, 4. the GES loop (Alg. 1), 5. the routed evaluator; then the machinery:
@@ -339,6 +339,7 @@ def ges_round(space, train_fn, score_fn, run_dir, config, seed, executor, state:
     new, cov, events = adapt_k(space, score_fn, run_dir, config, seed, executor, state, new, points, cov)
     entry = history_entry(space, new, cov, probes, winner, ids, events, scores)
     return replace(new, history=state.history + [entry])
+
 
 def train(space, train_fn, run_dir, seed, executor, state: GESState) -> tuple[list, list]:
     """Train (Alg. 1 lines 7-10): each specialist on designs from its own territory, warm-started from its last
