@@ -151,9 +151,8 @@ class Preset:
     probe_tiebreak: bool = False
     # [ours] the obstacle's strict rule (ballu.curriculum_update): an episode that does not end past the box's middle
     # goes down, where the facts keep the level in the stay band, which our policies reach by straddling the box's
-    # edge (the baseline design's own policy: 19-26 cm clearing nothing, strict 12.1; paper 14.2: docs/stay_band).
-    # score_strict: every obstacle J (tables, probes, TPE), on in every preset; False (the class default, what runs
-    # before it did) = the facts' J. train_strict: the obstacle's training curriculum, an option
+    # edge (docs/stay_band). score_strict: every obstacle J (tables, probes, TPE), on in every preset; False (the
+    # class default, what runs before it did) = the facts' J. train_strict: the training curriculum, an option
     score_strict: bool = False
     train_strict: bool = False
 
