@@ -377,32 +377,23 @@ def cmd_rescore_table(a) -> None:
           "design' = its own policy at the baseline design.\n")
     print("| run | space | baseline design | e2e MLP | e2e MoE | GES | e2e MLP, step-matched |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
-    for run in runs:
-        for sp in ("d2", "d3"):
-            cells = []
-            for m in METHODS:
-                f, s = get(run, "d2" if m == "baseline" else sp, m, "facts"), \
-                    get(run, "d2" if m == "baseline" else sp, m, "strict")
-                paper = PAPER_TABLE2[("obstacle", sp)].get("design" if m == "baseline" else m)
-                if f is None or s is None:
-                    cells.append("-")
-                    continue
-                ci = "" if m == "baseline" else "[{:.1f}, {:.1f}] ".format(*bootstrap_ci(s["J"]))
-                cells.append(f"{np.mean(f['J']):.1f} -> **{np.mean(s['J']):.1f}** {ci}"
-                             + (f"({paper})" if paper else ""))
-            print(f"| {short(run)} | {sp.upper()} | " + " | ".join(cells) + " |")
+    def rows(cell):   # a table row per run and space: cell(method, space, facts' set, strict set) per method
+        for run in runs:
+            for sp in ("d2", "d3"):
+                pairs = [(m, [get(run, "d2" if m == "baseline" else sp, m, r) for r in RULES]) for m in METHODS]
+                print(f"| {short(run)} | {sp.upper()} | " + " | ".join(
+                    "-" if None in fs else cell(m, sp, *fs) for m, fs in pairs) + " |")
+
+    def mean_cell(m, sp, f, s):
+        paper = PAPER_TABLE2[("obstacle", sp)].get("design" if m == "baseline" else m)
+        ci = "" if m == "baseline" else "[{:.1f}, {:.1f}] ".format(*bootstrap_ci(s["J"]))
+        return f"{np.mean(f['J']):.1f} -> **{np.mean(s['J']):.1f}** {ci}" + (f"({paper})" if paper else "")
+    rows(mean_cell)
     print("\nWhere the episodes end (facts' walk -> strict walk): cleared / stay band / short, every episode of "
           "every test design.\n")
     print("| run | space | baseline design | e2e MLP | e2e MoE | GES | e2e MLP, step-matched |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
-    for run in runs:
-        for sp in ("d2", "d3"):
-            cells = []
-            for m in METHODS:
-                f, s = (get(run, "d2" if m == "baseline" else sp, m, r) for r in RULES)
-                cells.append("-" if f is None or s is None else f"{outcome_shares(f['x'])} -> "
-                             f"{outcome_shares(s['x'])}")
-            print(f"| {short(run)} | {sp.upper()} | " + " | ".join(cells) + " |")
+    rows(lambda m, sp, f, s: f"{outcome_shares(f['x'])} -> {outcome_shares(s['x'])}")
     print("\nHead-to-head: GES - the other method, mean [95 % paired-bootstrap CI], Wilcoxon p, verdict on "
           "'GES > it': facts' J | strict J.\n")
     print("| run | space | vs e2e MLP | vs e2e MoE | vs e2e MLP, step-matched |")
