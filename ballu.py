@@ -50,11 +50,15 @@ TABLE_I_LOW = np.array([TABLE_I[n][0] for n in DESIGN_NAMES])
 TABLE_I_HIGH = np.array([TABLE_I[n][1] for n in DESIGN_NAMES])
 BASELINE = np.array([0.45, 0.45, 0.70, 0.002])        # [paper] Table I; gcr 0.70 lies OUTSIDE the bounds
 D2_CENTRE = np.array([0.45, 0.45, 0.81, 0.0505])      # the centre of D2's Table I box (legs at the baseline's)
-# Narrower per-task ranges of the authors' code [facts]; "l" is the symmetric leg length of D3.
-TASK_RANGES = {
+# The setups a design space can follow: "table", the paper's text (Table I's box, D2's legs at the baseline's 0.45 m);
+# "authors", the configurations their GES experiments ran (docs/facts.md sec. 14): narrower boxes per task, and
+# D2 on one robot per task with unequal legs (femur, tibia) [facts]. "l" is the symmetric leg length of D3.
+SETUPS = ("table", "authors")
+AUTHORS_BOX = {
     "obstacle": {"gcr": (0.75, 0.89), "spcf": (0.001, 0.010), "l": (0.20, 0.48)},
     "ramp": {"gcr": (0.725, 0.89), "spcf": (0.005, 0.100), "l": (0.20, 0.48)},
 }
+AUTHORS_D2_LEGS = {"obstacle": (0.480, 0.443), "ramp": (0.286, 0.215)}   # (l_f, l_t) of their D2 robots [facts]
 SPACE_NAMES = DESIGN_NAMES + ("l",)
 # Physical validity (what the simulator can represent at all), wider than any design space. [ours]
 VALID_LOW = np.array([0.05, 0.05, 0.0, 0.0])
@@ -68,6 +72,7 @@ class DesignSpace(Box):
     design of the space to the full 4-vector a lane receives. The co-design (ges.py) sees only the box."""
     fixed: dict = field(default_factory=dict)
     task: str | None = None
+    setup: str = "table"        # SETUPS: whose box (and D2 robot) this is, named in errors
 
     def __post_init__(self):
         super().__post_init__()
@@ -80,7 +85,13 @@ class DesignSpace(Box):
                 raise ValueError(f"parameter {n} is neither free nor fixed in this design space")
 
     def to_dict(self) -> dict:
-        return {**super().to_dict(), "fixed": dict(self.fixed), "task": self.task}
+        return {**super().to_dict(), "fixed": dict(self.fixed), "task": self.task, "setup": self.setup}
+
+    @property
+    def label(self) -> str:
+        """'obstacle D2 (the authors' box)': the space as an error names it."""
+        box = "Table I's box" if self.setup == "table" else "the authors' box and robot"
+        return f"{self.task or 'any task'} D{self.d} ({box})"
 
     def full(self, theta) -> np.ndarray:
         """(n, 4) array of (l_f, l_t, gcr, spcf) (paper Sec. III-B: D2 fixes the legs, D3 ties them)."""
@@ -96,29 +107,31 @@ class DesignSpace(Box):
         return np.stack(cols, axis=1)
 
 
-def _bounds(names, task, ranges):
+def _setup(names, task, setup):
+    """(lows, highs, fixed legs) of a space's free `names` under `setup` (SETUPS)."""
     if task not in (None, "obstacle", "ramp"):
         raise ValueError(f"task={task!r} not allowed: use None, 'obstacle' or 'ramp'")
-    if ranges not in ("table", "facts"):
-        raise ValueError(f"ranges={ranges!r} not allowed: use 'table' (paper Table I) or 'facts' (per-task)")
-    if ranges == "facts" and task is None:
-        raise ValueError("ranges='facts' needs task='obstacle' or 'ramp' (the facts' ranges are per task)")
-    src = TASK_RANGES[task] if ranges == "facts" else dict(TABLE_I, l=TABLE_I["l_f"])
-    return tuple(src[n][0] for n in names), tuple(src[n][1] for n in names)
+    if setup not in SETUPS:
+        raise ValueError(f"setup={setup!r} not allowed: use 'table' (paper Table I) or 'authors' (their experiments)")
+    if setup == "authors" and task is None:
+        raise ValueError("setup='authors' needs task='obstacle' or 'ramp' (the authors' boxes and robots are per task)")
+    src = AUTHORS_BOX[task] if setup == "authors" else dict(TABLE_I, l=TABLE_I["l_f"])
+    legs = AUTHORS_D2_LEGS[task] if setup == "authors" else tuple(BASELINE[:2])
+    return tuple(src[n][0] for n in names), tuple(src[n][1] for n in names), {"l_f": legs[0], "l_t": legs[1]}
 
 
-def d2(task: str | None = None, ranges: str = "table") -> DesignSpace:
-    """D2 = (gcr, spcf) with l_f = l_t = 0.45 m (paper Sec. III-B). ranges='table': Table I bounds [paper];
-    ranges='facts': the narrower per-task ranges of the authors' code [facts]."""
-    lows, highs = _bounds(("gcr", "spcf"), task, ranges)
-    return DesignSpace(("gcr", "spcf"), lows, highs, {"l_f": BASELINE[0], "l_t": BASELINE[1]}, task)
+def d2(task: str | None = None, setup: str = "table") -> DesignSpace:
+    """D2 = (gcr, spcf) on one robot (paper Sec. III-B). setup='table': Table I's box, legs l_f = l_t = 0.45 m
+    [paper]; setup='authors': the task's box and D2 robot of the authors' experiments [facts]."""
+    lows, highs, legs = _setup(("gcr", "spcf"), task, setup)
+    return DesignSpace(("gcr", "spcf"), lows, highs, legs, task, setup)
 
 
-def d3(task: str | None = None, ranges: str = "table") -> DesignSpace:
+def d3(task: str | None = None, setup: str = "table") -> DesignSpace:
     """D3 = (gcr, spcf, l) with l_f = l_t = l (paper Sec. III-B). l in Table I's leg range [0.25, 0.55]
-    [paper], or [0.20, 0.48] with ranges='facts' [facts]."""
-    lows, highs = _bounds(("gcr", "spcf", "l"), task, ranges)
-    return DesignSpace(("gcr", "spcf", "l"), lows, highs, {}, task)
+    [paper], or the authors' boxes with l in [0.20, 0.48] (setup='authors') [facts]."""
+    lows, highs, _ = _setup(("gcr", "spcf", "l"), task, setup)
+    return DesignSpace(("gcr", "spcf", "l"), lows, highs, {}, task, setup)
 
 
 def check_design(design, low=VALID_LOW, high=VALID_HIGH, what="design") -> np.ndarray:

@@ -112,7 +112,8 @@ class Preset:
     table3_inits: tuple = ("grid", "random", "fps", "fps+lloyd")   # Table III's initialisations (obstacle, D2)
     cost_task: str = "obstacle"  # the paper measured cost on the 3D space
     cost_space: str = "d3"
-    ranges: str = "table"       # "table": paper Table I bounds; "facts": the authors' narrower per-task ranges
+    setup: str = "table"        # ballu.SETUPS: "table" = Table I's box, D2 legs 0.45 m [paper]; "authors" = each
+    #                             task's box and D2 robot of the authors' experiments [facts] (docs/facts.md sec. 14)
     ppo_init_action_mean: float = 0.5   # initial mean action: 0.5 = servo half way (ppo_ballu's default for BALLU)
     ppo_start: str = "task"     # ours: "task" = the task's measured default (ballu.train_start_levels:
     #                             spread on the ramp, 0 on the obstacle); "spread" = lanes start at uniform levels
@@ -159,7 +160,7 @@ class Preset:
     def __post_init__(self):   # one line naming a bad setting and what is allowed (runkit.settings)
         need(self, "cells", self.cells and set(self.cells) <= set(CELLS),
              f"each one of {','.join(CELLS)}, at least one")
-        need(self, "ranges", self.ranges in ("table", "facts"), "'table' (paper Table I) or 'facts' (per task)")
+        need(self, "setup", self.setup in ballu.SETUPS, "'table' (paper Table I) or 'authors' (their experiments)")
         need(self, "policy_rule", self.policy_rule in ("best", "last"), "'best' or 'last' (ppo.scored_path)")
         need(self, "ppo_start", self.ppo_start in ballu.START_LEVEL_NAMES, f"one of {ballu.START_LEVEL_NAMES}")
         need(self, "cost_task", self.cost_task in TASKS, f"one of {TASKS}")
@@ -798,7 +799,7 @@ def report(run: Run, manifest: dict) -> str:
     """Write REPORT.md and results.json from whatever stages have finished."""
     results = {name: stage_result(run, name) for name in STAGES}
     times = stage_times(run.path("stage_seconds.json"))
-    sections = [("table1", lambda r: report_table1(r)),
+    sections = [("table1", lambda r: report_table1(r, run.preset)),
                 ("table2", lambda r: report_table2(r, run.preset, results["matched"])),
                 ("table3", lambda r: report_table3(r, run.preset)), ("ksens", lambda r: report_ksens(r, run.preset)),
                 ("ges", lambda r: report_ges_runs(r, run.preset)), ("cost", report_cost), ("figures", report_figures)]

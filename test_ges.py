@@ -828,7 +828,7 @@ def test_experiments_stay_band_variants_edit_only_what_they_name():
     links = {link.get("name"): link for link in root.iter("link")}
     assert not links["balloon"].findall("collision") and len(links["tibia_r"].findall("collision")) == 3
 
-# --- design spaces (paper Table I, facts per-task ranges) ---
+# --- design spaces (paper Table I; the authors' experiments' boxes and D2 robots [facts]) ---
 D2_BOX = ges.Box(("gcr", "spcf"), (0.72, 0.001), (0.90, 0.100))             # D2's Table I bounds as a plain box
 D3_BOX = ges.Box(("gcr", "spcf", "l"), (0.72, 0.001, 0.25), (0.90, 0.100, 0.55))
 
@@ -848,11 +848,53 @@ def test_ballu_d2_d3_bounds_and_full():
     np.testing.assert_allclose(s2.full([0.8, 0.05]), [[0.45, 0.45, 0.8, 0.05]])
     np.testing.assert_allclose(s3.full([[0.8, 0.05, 0.3], [0.9, 0.1, 0.55]]),
                                [[0.3, 0.3, 0.8, 0.05], [0.55, 0.55, 0.9, 0.1]])
-    ob, ramp, ob3 = ballu.d2("obstacle", "facts"), ballu.d2("ramp", "facts"), ballu.d3("obstacle", "facts")
+    assert ballu.d2("ramp").lows == s2.lows and ballu.d2("ramp").setup == "table"  # a task alone: Table I
+
+
+def test_ballu_authors_setup_boxes_and_d2_robots():
+    """setup='authors': each task's box and D2 robot as the authors' GES configurations have them (docs/facts.md
+    sec. 14, their scripts/pec/configs at 104e07b): numbers typed from the facts, not from ballu's tables."""
+    ob, ramp = ballu.d2("obstacle", "authors"), ballu.d2("ramp", "authors")
+    ob3, ramp3 = ballu.d3("obstacle", "authors"), ballu.d3("ramp", "authors")
     assert ob.lows == (0.75, 0.001) and ob.highs == (0.89, 0.010)
     assert ramp.lows == (0.725, 0.005) and ramp.highs == (0.89, 0.100)
-    assert ob3.lows[2] == 0.20 and ob3.highs[2] == 0.48
-    assert ballu.d2("ramp").lows == s2.lows  # a task alone keeps Table I bounds
+    assert ob3.lows == (0.75, 0.001, 0.20) and ob3.highs == (0.89, 0.010, 0.48)
+    assert ramp3.lows == (0.725, 0.005, 0.20) and ramp3.highs == (0.89, 0.100, 0.48)
+    np.testing.assert_allclose(ob.full([0.8, 0.005]), [[0.480, 0.443, 0.8, 0.005]])   # unequal legs
+    np.testing.assert_allclose(ramp.full([0.8, 0.05]), [[0.286, 0.215, 0.8, 0.05]])
+    np.testing.assert_allclose(ob3.full([0.8, 0.005, 0.3]), [[0.3, 0.3, 0.8, 0.005]])
+    assert ob.to_dict()["setup"] == "authors" and "authors" in ob.label and "obstacle D2" in ob.label
+    preset = replace(run_all.SMOKE, setup="authors")
+    for t, sp, space in (("obstacle", "d2", ob), ("ramp", "d2", ramp), ("ramp", "d3", ramp3)):
+        assert policies.space_of(preset, t, sp) == space   # every stage's one funnel
+    theta = ob.sample_uniform(np.random.default_rng(0), 200)   # test designs: inside the authors' box
+    assert (theta[:, 1] <= 0.010).all() and (theta[:, 0] >= 0.75).all()
+
+
+def test_use_design_outside_the_authors_box_names_it():
+    """A design outside the active box is a one-line error naming the box; D2's legs are the task's robot's."""
+    ob = ballu.d2("obstacle", "authors")
+    with pytest.raises(use.UseError) as e:
+        use.design_arg("gcr=0.8,spcf=0.05", ob)   # inside Table I's box, outside the authors' obstacle box
+    msg = str(e.value)
+    assert "\n" not in msg and "spcf=0.05" in msg and "the authors' box" in msg and "[0.001, 0.01]" in msg, msg
+    with pytest.raises(use.UseError, match="l_f is not free.*0.48"):
+        use.design_arg("gcr=0.8,spcf=0.005,l_f=0.45", ob)
+    assert use.design_arg("gcr=0.8,spcf=0.005,l_f=0.48", ob).full.tolist() == [0.48, 0.443, 0.8, 0.005]
+    assert use.design_arg("baseline", ob).full.tolist() == ballu.BASELINE.tolist()   # the paper's robot, as ever
+
+
+def test_run_all_refuses_to_resume_in_another_setup(tmp_path, capsys):
+    """A run folder made in one setup refuses to go on in the other (the manifest's budgets), writing nothing."""
+    out = str(tmp_path / "run")
+    base = ["--preset", "smoke", "--out", out, "--workers", "1", "--only", "table1"]
+    assert run_all.main(base + ["--set", "setup=authors"]) == 0
+    before = open(os.path.join(out, "manifest.json")).read()
+    capsys.readouterr()
+    assert run_all.main(base) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "setup ('authors' there, 'table' now)" in err, err
+    assert open(os.path.join(out, "manifest.json")).read() == before
 
 
 # ==========================================================================================================
@@ -1554,8 +1596,8 @@ def test_ges_unit_roundtrip_and_uniform_sampling():
     (lambda: ballu.d2().validate([0.8, float("nan")]), ["spcf=nan"]),
     (lambda: ballu.d2().validate([0.8, 0.05, 0.3]), ["shape", "d=2"]),
     (lambda: ballu.d2(task="walk"), ["task='walk'"]),
-    (lambda: ballu.d3(ranges="wide"), ["ranges='wide'"]),
-    (lambda: ballu.d2(ranges="facts"), ["ranges='facts'", "task"]),
+    (lambda: ballu.d3(setup="wide"), ["setup='wide'", "'table'", "'authors'"]),
+    (lambda: ballu.d2(setup="authors"), ["setup='authors'", "task"]),
     (lambda: ballu.DesignSpace(("gcr",), (0.9,), (0.8,), {"l_f": .4, "l_t": .4, "spcf": .01}),
      ["gcr", "low < high"]),
     (lambda: ballu.DesignSpace(("gcr",), (0.7,), (0.8,), {"l_f": .4}), ["l_t"]),
@@ -3999,7 +4041,7 @@ NOT_NUMBERS = {   # modules the hashed files import that make no number: what ea
 
 
 @pytest.mark.parametrize("item, words", [
-    ("ranges=bogus_xyz", "Preset.ranges='bogus_xyz' not allowed: 'table' (paper Table I) or 'facts'"),
+    ("setup=bogus_xyz", "Preset.setup='bogus_xyz' not allowed: 'table' (paper Table I) or 'authors'"),
     ("policy_rule=bogus", "Preset.policy_rule='bogus' not allowed: 'best' or 'last'"),
     ("ppo_start=up", "Preset.ppo_start='up' not allowed: one of ('task', 'spread', 'zero')"),
     ("table3_inits=grid,nope", "Preset.table3_inits=('grid', 'nope') not allowed: each one of grid,random,fps"),

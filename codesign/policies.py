@@ -34,8 +34,9 @@ from runkit.progress import Throttled
 # 1. The design spaces and a training job
 # ----------------------------------------------------------------------------------------------------------
 def space_of(preset: Preset, task: str, sp: str) -> ballu.DesignSpace:
-    """D2 = (GCR, SPCF) with l_f = l_t = 0.45; D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B)."""
-    return (ballu.d2 if sp == "d2" else ballu.d3)(task, preset.ranges)
+    """D2 = (GCR, SPCF) on one robot; D3 = (GCR, SPCF, l) with l_f = l_t = l (paper Sec. III-B); the box and D2's
+    robot are the preset's setup's (ballu.SETUPS)."""
+    return (ballu.d2 if sp == "d2" else ballu.d3)(task, preset.setup)
 
 
 def ppo_config(preset: Preset) -> ppo.PPOConfig:

@@ -88,7 +88,7 @@ def design_arg(text: str, space) -> Design:
     for n, v, lo, hi in zip(space.names, theta, space.lows, space.highs):
         if text != "baseline" and not lo <= v <= hi:
             why = "" if n in given else " (the baseline's, not given)"
-            raise BadArg(f"design {text!r}: {n}={v:g}{why} is outside {space.task} D{space.d}: allowed range "
+            raise BadArg(f"design {text!r}: {n}={v:g}{why} is outside {space.label}: allowed range "
                          f"[{lo:g}, {hi:g}]")
     full = ballu.BASELINE.astype(float) if text == "baseline" else space.full(theta)[0]
     implied = dict(zip(ballu.DESIGN_NAMES, full), l=full[0] if full[0] == full[1] else None)
@@ -97,7 +97,7 @@ def design_arg(text: str, space) -> Design:
             there = f"{n} = {implied[n]} there"
             if n in ("l_f", "l_t") and "l" in space.names:
                 there = "l_f = l_t = l: give l"
-            raise BadArg(f"design {text!r}: {n} is not free in {space.task} D{space.d} (free: "
+            raise BadArg(f"design {text!r}: {n} is not free in {space.label} (free: "
                          f"{', '.join(space.names)}; {there})")
     return Design(text, theta, full)
 

@@ -81,7 +81,7 @@ def report_header(p, seed: int, commit: str, manifest: dict) -> list:
             f"(facts: 50{'' if p.ges_init_designs == 50 else '; ours: coverage growth is set by F / n_init'}), "
             f"target coverage {p.ges_target_coverage:.0%}, "
             f"K = {p.K_d2} (D2) / {p.K_d3} (D3); {p.n_test} test designs per task/space; {p.tpe_trials} TPE "
-            f"trials ({p.tpe_startup} random first); {score_text(p)}; design bounds: {p.ranges}"] + (
+            f"trials ({p.tpe_startup} random first); {score_text(p)}; design setup: {p.setup}"] + (
         ["- overridden from the command line (`--set`): " + ", ".join(
             f"{k}={','.join(map(str, v)) if isinstance(v, list) else v}" for k, v in manifest["overrides"].items())]
         if manifest.get("overrides") else []) + [""]
@@ -123,18 +123,25 @@ def report_wall(times: dict, planned: dict, stages, command: str, rate: tuple, c
     return lines + [""] + md_table(["stage", "wall time", "plan", "measured / plan"], rows)
 
 
-DESIGN_WORDS = ("D2 = (gcr, spcf) with l_f = l_t = 0.45 m; D3 = (gcr, spcf, l) with l = l_f = l_t, the symmetric "
-                "leg length (paper Sec. III-B).")
+def design_words(preset) -> str:
+    """The search spaces of a run in the report's words: its setup's boxes and D2 robots (ballu.SETUPS)."""
+    if preset.setup == "table":
+        return ("D2 = (gcr, spcf) with l_f = l_t = 0.45 m; D3 = (gcr, spcf, l) with l = l_f = l_t, the symmetric leg "
+                "length (paper Sec. III-B); Table I's box.")
+    boxes = "; ".join(f"{t}: gcr {b['gcr']}, spcf {b['spcf']}, l {b['l']}, D2 robot (l_f, l_t) = "
+                      f"{ballu.AUTHORS_D2_LEGS[t]} m" for t, b in ballu.AUTHORS_BOX.items())
+    return ("D2 = (gcr, spcf) on one robot per task; D3 = (gcr, spcf, l) with l = l_f = l_t (paper Sec. III-B); the "
+            f"authors' experiments' boxes and robots (facts, docs/facts.md sec. 14): {boxes}.")
 
 
-def report_table1(table1: dict) -> list:
+def report_table1(table1: dict, preset) -> list:
     rows = []
     for name, (low, high, base) in table1["rows"].items():
         paper_low, paper_high, paper_base = PAPER_TABLE1[name]
         rows.append([name, cell(low, paper_low, "{:g}"), cell(high, paper_high, "{:g}"),
                      cell(base, paper_base, "{:g}")])
     return ["## Table I: design space and baseline design", ""] + md_table(
-        ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {DESIGN_WORDS}", ""]
+        ["parameter", "lower", "upper", "baseline"], rows) + [f"Search spaces: {design_words(preset)}", ""]
 
 
 def cells_of(table2: dict) -> list:
@@ -183,7 +190,7 @@ def report_table2(table2: dict, preset, matched: dict | None = None) -> list:
             + md_table(["task", "space", "method", f"peak J, {preset.score_episodes} episodes",
                         f"peak J, {preset.peak_episodes or '-'} episodes (paper)", "peak design",
                         "paper's peak design"], peaks)
-            + [f"Designs: {DESIGN_WORDS}", ""]
+            + [f"Designs: {design_words(preset)}", ""]
             + ["### Head-to-head: GES against each baseline on the same test designs", "",
                "Cells: mean difference GES - baseline [95 % paired-bootstrap CI], Wilcoxon signed-rank p; % of "
                "designs where GES scores higher [95 % CI] (paper's %), % ties.", ""]
