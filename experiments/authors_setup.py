@@ -1,0 +1,117 @@
+"""experiments/authors_setup.py -- the D2 cells in the authors' setup beside Table I's, seed by seed.
+
+The authors' GES experiments ran each task on its own box and D2 robot (docs/facts.md sec. 14), which run_all.py
+runs with `--set setup=authors`; Table I's setup is the paper's text and our committed runs. This tool puts a
+run of each setup side by side, per seed and D2 cell: every method's mean J [95 % CI], GES minus each other
+method paired over the run's own test designs, and the paper's numbers. Obstacle cells of Table I's runs are read
+from the stay-band study's rescoring (docs/stay_band: those runs were scored by the facts' J; `--rule` picks
+which), so that both setups are read with one rule. [ours]
+
+    python run_all.py --preset overnight --set setup=authors --set cells=obstacle-d2,ramp-d2 --seed S \\
+        --only table1,baselines,ges,matched,table2 --out ~/runs/authors/seedS
+    python -m experiments.authors_setup --table docs/overnight/seed0 docs/overnight/seed1 \\
+        --authors ~/runs/authors/seed0 ~/runs/authors/seed1 --rescore docs/stay_band/data/rescore.json
+
+Results: docs/authors_setup/README.md.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import zlib
+
+import numpy as np
+
+from experiments import args
+from report.paper import PAPER_TABLE2
+from report.tables import mean_ci, md_table
+from runkit.stats import paired_comparison, verdict
+
+CELLS = ("obstacle-d2", "ramp-d2")
+METHODS = ("ges", "mlp", "moe", "mlp_matched")
+NAMES = {"ges": "GES", "mlp": "e2e MLP", "moe": "e2e MoE", "mlp_matched": "e2e MLP, step-matched"}
+
+
+def run_scores(run: str, cell: str, rescore: dict | None, rule: str) -> dict:
+    """{method: scores over the run's test designs} of one cell; a run scored by the facts' J has its obstacle
+    cells from `rescore` (experiments.stay_band rescore: keys 'RUN|d2|METHOD|RULE') under `rule`."""
+    doc = json.load(open(os.path.join(run, "results.json")))
+    stages, manifest = doc["stages"], doc["manifest"]
+    scored = "strict" if manifest["budgets"].get("score_strict") else "facts"
+    task, sp = cell.split("-")
+    if task == "obstacle" and scored != rule:
+        if rescore is None:
+            raise args.BadArg(f"{run} scored its obstacle J by the {scored} rule, not {rule}: give --rescore (stay_band's JSON)")
+        keys = {m: f"{os.path.relpath(run)}|{sp}|{m}|{rule}" for m in METHODS}
+        missing = [k for k in keys.values() if k not in rescore and not k.startswith("docs/quick")]
+        if missing:
+            raise args.BadArg(f"--rescore has no {missing[0]!r}: run experiments.stay_band rescore {run} first")
+        return {m: np.array(rescore[k]["J"]) for m, k in keys.items() if k in rescore}
+    c = stages["table2"]["cells"][cell]
+    out = {m: np.array(c[m]["scores"]) for m in ("ges", "mlp", "moe")}
+    if stages.get("matched") and cell in stages["matched"]:
+        out["mlp_matched"] = np.array(stages["matched"][cell]["scores"])
+    return out
+
+
+def setup_of(run: str) -> str:
+    return json.load(open(os.path.join(run, "results.json")))["manifest"]["budgets"].get("setup", "table")
+
+
+def rows_of(label: str, run: str, cell: str, rescore, rule: str) -> list:
+    s, task = run_scores(run, cell, rescore, rule), cell.split("-")[0]
+    cmps = []
+    for m in ("mlp", "moe", "mlp_matched"):
+        if m not in s:
+            cmps.append("-")
+            continue
+        c = paired_comparison(s["ges"], s[m], seed=zlib.crc32(f"{cell}{m}".encode()))
+        cmps.append(f"{c['diff']:+.1f} [{c['diff_lo']:+.1f}, {c['diff_hi']:+.1f}], p = {c['p']:.2g}, "
+                    + {"supported": "yes", "not supported": "no", "not resolved": "open"}[verdict(c)])
+    means = [mean_ci(s[m]) if m in s else "-" for m in METHODS]
+    return [[label, f"{len(s['ges'])}"] + means + cmps]
+
+
+def cmd_table(a) -> None:
+    rescore = json.load(open(a.rescore)) if a.rescore else None
+    if len(a.table) != len(a.authors):
+        raise args.BadArg(f"--table and --authors pair run by run (seed by seed): {len(a.table)} and "
+                          f"{len(a.authors)} folders given")
+    for run, want in [(r, "table") for r in a.table] + [(r, "authors") for r in a.authors]:
+        if setup_of(run) != want:
+            raise args.BadArg(f"{run} ran setup={setup_of(run)!r}, not {want!r}")
+    head = ["seed: setup", "designs"] + [NAMES[m] for m in METHODS] + [f"GES - {NAMES[m]}"
+                                                                       for m in ("mlp", "moe", "mlp_matched")]
+    for cell in CELLS:
+        task, sp = cell.split("-")
+        paper = PAPER_TABLE2[(task, sp)]
+        rows = []
+        for t_run, a_run in zip(a.table, a.authors):
+            seed = json.load(open(os.path.join(a_run, "results.json")))["manifest"]["seed"]
+            rows += rows_of(f"{seed}: Table I", t_run, cell, rescore, a.rule)
+            rows += rows_of(f"{seed}: authors'", a_run, cell, rescore, a.rule)
+        rows.append(["paper", "1000", f"{paper['ges']}", f"{paper['mlp']}", f"{paper['moe']}", "-",
+                     f"{paper['ges'] - paper['mlp']:+.1f}", f"{paper['ges'] - paper['moe']:+.1f}", "-"])
+        unit = "cm, obstacle J by the " + a.rule + " rule" if task == "obstacle" else "deg"
+        print(f"**{task} D2** ({unit}): mean [95 % CI] over each run's test designs; GES - the other method "
+              "[95 % paired-bootstrap CI], Wilcoxon p, 'GES > it' yes / no / open\n")
+        print("\n".join(md_table(head, rows)) + "\n")
+
+
+def main(argv=None) -> int:
+    p = args.program("experiments.authors_setup", __doc__)
+    p.add_argument("--table", nargs="+", required=True, help="runs in Table I's setup (the committed ones)")
+    p.add_argument("--authors", nargs="+", required=True, help="runs with --set setup=authors, the same seeds")
+    p.add_argument("--rescore", help="experiments.stay_band rescore's JSON, for Table I's obstacle cells")
+    p.add_argument("--rule", default="strict", choices=("facts", "strict"), help="the obstacle J's rule")
+    a = args.parse(p, argv)
+    try:
+        cmd_table(a)
+    except (args.BadArg, FileNotFoundError, KeyError) as e:   # a folder that is not a run, or lacks a cell
+        p.error(f"{type(e).__name__}: {e}" if not isinstance(e, args.BadArg) else str(e))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
