@@ -371,7 +371,9 @@ def cmd_rescore_table(a) -> None:
     from report.paper import PAPER_TABLE2
     from runkit.stats import bootstrap_ci, paired_comparison, verdict
     res = json.load(open(a.rescore))
-    runs = list(dict.fromkeys(k.split("|")[0] for k in res))
+    runs = [r for r in dict.fromkeys(k.split("|")[0] for k in res) if a.only is None or r == a.only]
+    if not runs:
+        raise SystemExit(f"stay_band rescore-table: --only {a.only!r} is not a run of {a.rescore}")
     get = lambda run, sp, m, rule: res.get(f"{run}|{sp}|{m}|{rule}")   # noqa: E731
     print("Table II, obstacle: mean J [95 % CI] under the facts' rule -> the strict rule (paper); 'baseline "
           "design' = its own policy at the baseline design.\n")
@@ -470,6 +472,7 @@ def main(argv=None) -> int:
     rt = args.command(sub, "rescore-table", "Table II, head-to-head, landscape under both rules", __doc__)
     rt.add_argument("rescore", help="rescore's JSON")
     rt.add_argument("--figures", help="a folder for Fig. 8 under both rules (one PNG per run)")
+    rt.add_argument("--only", help="one run's rows, as rescore named it (e.g. docs/overnight/seed1)")
     t = args.command(sub, "table", "the tables of docs/stay_band", __doc__)
     t.add_argument("ends")
     t.add_argument("pressed", nargs="?")
