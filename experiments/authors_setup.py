@@ -11,6 +11,7 @@ which), so that both setups are read with one rule. [ours]
         --only table1,baselines,ges,matched,table2 --out ~/runs/authors/seedS
     python -m experiments.authors_setup --table docs/overnight/seed0 docs/overnight/seed1 \\
         --authors ~/runs/authors/seed0 ~/runs/authors/seed1 --rescore docs/stay_band/data/rescore.json
+    python -m experiments.authors_setup --table docs/overnight/seed0 --boxes docs/authors_setup/boxes.png
 
 Results: docs/authors_setup/README.md.
 """
@@ -73,7 +74,39 @@ def rows_of(label: str, run: str, cell: str, rescore, rule: str) -> list:
     return [[label, f"{len(s['ges'])}"] + means + cmps]
 
 
+def cmd_boxes(runs: list, out: str) -> None:
+    """Fig.: each task's D2 box in both setups, in (GCR, SPCF), with the Table I runs' test designs; prints the
+    share of those designs inside the authors' box."""
+    import csv
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import ballu
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
+    for ax, task in zip(axes, ("obstacle", "ramp")):
+        for setup, colour in (("table", "tab:blue"), ("authors", "tab:red")):
+            sp = ballu.d2(task, setup)
+            (g0, s0), (g1, s1) = sp.lows, sp.highs
+            legs = "{:.3g} / {:.3g} m".format(sp.fixed["l_f"], sp.fixed["l_t"])
+            ax.add_patch(plt.Rectangle((g0, s0), g1 - g0, s1 - s0, fill=False, ec=colour, lw=2,
+                                       label=("Table I's box" if setup == "table" else "the authors' box") + f", legs {legs}"))
+        pts = np.array([[float(r["gcr"]), float(r["spcf"])] for run in runs
+                        for r in csv.DictReader(open(os.path.join(run, "test_scores.csv")))
+                        if r["task"] == task and r["space"] == "d2"])
+        inside = ballu.d2(task, "authors")
+        share = np.mean([(np.array(inside.lows) <= p).all() and (p <= np.array(inside.highs)).all() for p in pts])
+        ax.scatter(pts[:, 0], pts[:, 1], s=8, c="k", label=f"Table I runs' test designs ({100 * share:.0f} % in theirs)")
+        print(f"{task} D2: {len(pts)} test designs of {', '.join(runs)}, {100 * share:.0f} % inside the authors' box")
+        ax.set(title=f"{task} D2", xlabel="GCR", ylabel="SPCF", xlim=(0.70, 0.92), ylim=(0, 0.105))
+        ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
 def cmd_table(a) -> None:
+    if a.boxes:
+        return cmd_boxes(a.table, a.boxes)
     rescore = json.load(open(a.rescore)) if a.rescore else None
     if len(a.table) != len(a.authors):
         raise args.BadArg(f"--table and --authors pair run by run (seed by seed): {len(a.table)} and "
@@ -102,7 +135,8 @@ def cmd_table(a) -> None:
 def main(argv=None) -> int:
     p = args.program("experiments.authors_setup", __doc__)
     p.add_argument("--table", nargs="+", required=True, help="runs in Table I's setup (the committed ones)")
-    p.add_argument("--authors", nargs="+", required=True, help="runs with --set setup=authors, the same seeds")
+    p.add_argument("--authors", nargs="+", default=[], help="runs with --set setup=authors, the same seeds")
+    p.add_argument("--boxes", help="instead of the table: a PNG of both setups' D2 boxes and --table's test designs")
     p.add_argument("--rescore", help="experiments.stay_band rescore's JSON, for Table I's obstacle cells")
     p.add_argument("--rule", default="strict", choices=("facts", "strict"), help="the obstacle J's rule")
     a = args.parse(p, argv)
