@@ -89,7 +89,7 @@ class DesignSpace(Box):
 
     @property
     def label(self) -> str:
-        """'obstacle D2 (the authors' box)': the space as an error names it."""
+        """'obstacle D2 (the authors' box and robot)': the space as an error names it."""
         box = "Table I's box" if self.setup == "table" else "the authors' box and robot"
         return f"{self.task or 'any task'} D{self.d} ({box})"
 
