@@ -3936,7 +3936,8 @@ COMMAND_LINES = [   # (the module holding a file's main, its name, argv); [] = r
     ("experiments.probe_agreement", "main", ["--help"]), ("experiments.same_results", "main", ["--help"]),
     ("run_all", "main", ["--help"]), ("experiments.step_matched", "main", ["--help"]),
     ("experiments.ges_territories", "main", ["--help"]), ("experiments.ges_screen", "main", ["--help"]),
-    ("experiments.rerun", "main", ["--help"]),
+    ("experiments.rerun", "main", ["--help"]), ("experiments.authors_setup", "main", ["--help"]),
+    ("experiments.stay_band", "main", ["--help"]),
 ]
 
 
