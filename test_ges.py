@@ -871,6 +871,21 @@ def test_ballu_authors_setup_boxes_and_d2_robots():
     assert (theta[:, 1] <= 0.010).all() and (theta[:, 0] >= 0.75).all()
 
 
+def test_box_contains_agrees_with_validate():
+    """contains answers, row by row, what validate would raise on: edges and round-off in, NaN and beyond out."""
+    box = ballu.d2("obstacle", "authors")
+    rows = [[0.75, 0.001], [0.89, 0.010 + 1e-13], [0.80, 0.05], [0.70, 0.005], [np.nan, 0.005], [0.8, 0.0099]]
+    want = []
+    for r in rows:
+        try:
+            box.validate(r)
+            want.append(True)
+        except ValueError:
+            want.append(False)
+    assert want == [True, True, False, False, False, True]
+    assert box.contains(rows).tolist() == want and box.contains(rows[0]).tolist() == [True]
+
+
 def test_use_design_outside_the_authors_box_names_it():
     """A design outside the active box is a one-line error naming the box; D2's legs are the task's robot's."""
     ob = ballu.d2("obstacle", "authors")

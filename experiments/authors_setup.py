@@ -34,11 +34,19 @@ METHODS = ("ges", "mlp", "moe", "mlp_matched")
 NAMES = {"ges": "GES", "mlp": "e2e MLP", "moe": "e2e MoE", "mlp_matched": "e2e MLP, step-matched"}
 
 
-def run_scores(run: str, cell: str, rescore: dict | None, rule: str) -> dict:
+def load_run(run: str) -> dict:
+    """A run folder's results.json, with its folder under "run"."""
+    return {**json.load(open(os.path.join(run, "results.json"))), "run": run}
+
+
+def setup_of(doc: dict) -> str:
+    return doc["manifest"]["budgets"].get("setup", "table")
+
+
+def run_scores(doc: dict, cell: str, rescore: dict | None, rule: str) -> dict:
     """{method: scores over the run's test designs} of one cell; a run scored by the facts' J has its obstacle
     cells from `rescore` (experiments.stay_band rescore: keys 'RUN|d2|METHOD|RULE') under `rule`."""
-    doc = json.load(open(os.path.join(run, "results.json")))
-    stages, manifest = doc["stages"], doc["manifest"]
+    run, stages, manifest = doc["run"], doc["stages"], doc["manifest"]
     scored = "strict" if manifest["budgets"].get("score_strict") else "facts"
     task, sp = cell.split("-")
     if task == "obstacle" and scored != rule:
@@ -56,12 +64,8 @@ def run_scores(run: str, cell: str, rescore: dict | None, rule: str) -> dict:
     return out
 
 
-def setup_of(run: str) -> str:
-    return json.load(open(os.path.join(run, "results.json")))["manifest"]["budgets"].get("setup", "table")
-
-
-def rows_of(label: str, run: str, cell: str, rescore, rule: str) -> list:
-    s, task = run_scores(run, cell, rescore, rule), cell.split("-")[0]
+def rows_of(label: str, doc: dict, cell: str, rescore, rule: str) -> list:
+    s = run_scores(doc, cell, rescore, rule)
     cmps = []
     for m in ("mlp", "moe", "mlp_matched"):
         if m not in s:
@@ -93,8 +97,7 @@ def cmd_boxes(runs: list, out: str) -> None:
         pts = np.array([[float(r["gcr"]), float(r["spcf"])] for run in runs
                         for r in csv.DictReader(open(os.path.join(run, "test_scores.csv")))
                         if r["task"] == task and r["space"] == "d2"])
-        inside = ballu.d2(task, "authors")
-        share = np.mean([(np.array(inside.lows) <= p).all() and (p <= np.array(inside.highs)).all() for p in pts])
+        share = np.mean(ballu.d2(task, "authors").contains(pts))
         ax.scatter(pts[:, 0], pts[:, 1], s=8, c="k", label=f"Table I runs' test designs ({100 * share:.0f} % in theirs)")
         print(f"{task} D2: {len(pts)} test designs of {', '.join(runs)}, {100 * share:.0f} % inside the authors' box")
         ax.set(title=f"{task} D2", xlabel="GCR", ylabel="SPCF", xlim=(0.70, 0.92), ylim=(0, 0.105))
@@ -111,19 +114,20 @@ def cmd_table(a) -> None:
     if len(a.table) != len(a.authors):
         raise args.BadArg(f"--table and --authors pair run by run (seed by seed): {len(a.table)} and "
                           f"{len(a.authors)} folders given")
-    for run, want in [(r, "table") for r in a.table] + [(r, "authors") for r in a.authors]:
-        if setup_of(run) != want:
-            raise args.BadArg(f"{run} ran setup={setup_of(run)!r}, not {want!r}")
+    table, authors = [load_run(r) for r in a.table], [load_run(r) for r in a.authors]
+    for doc, want in [(d, "table") for d in table] + [(d, "authors") for d in authors]:
+        if setup_of(doc) != want:
+            raise args.BadArg(f"{doc['run']} ran setup={setup_of(doc)!r}, not {want!r}")
     head = ["seed: setup", "designs"] + [NAMES[m] for m in METHODS] + [f"GES - {NAMES[m]}"
                                                                        for m in ("mlp", "moe", "mlp_matched")]
     for cell in CELLS:
         task, sp = cell.split("-")
         paper = PAPER_TABLE2[(task, sp)]
         rows = []
-        for t_run, a_run in zip(a.table, a.authors):
-            seed = json.load(open(os.path.join(a_run, "results.json")))["manifest"]["seed"]
-            rows += rows_of(f"{seed}: Table I", t_run, cell, rescore, a.rule)
-            rows += rows_of(f"{seed}: authors'", a_run, cell, rescore, a.rule)
+        for t_doc, a_doc in zip(table, authors):
+            seed = a_doc["manifest"]["seed"]
+            rows += rows_of(f"{seed}: Table I", t_doc, cell, rescore, a.rule)
+            rows += rows_of(f"{seed}: authors'", a_doc, cell, rescore, a.rule)
         rows.append(["paper", "1000", f"{paper['ges']}", f"{paper['mlp']}", f"{paper['moe']}", "-",
                      f"{paper['ges'] - paper['mlp']:+.1f}", f"{paper['ges'] - paper['moe']:+.1f}", "-"])
         unit = "cm, obstacle J by the " + a.rule + " rule" if task == "obstacle" else "deg"

@@ -63,14 +63,23 @@ class Box:
         if arr.ndim != 2 or arr.shape[1] != self.d:
             raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
                              f"columns {self.names}")
-        tol = 1e-9 * (self.hi - self.lo)  # round-off of from_unit(to_unit(.)) must not be an error
+        outside = self._outside(arr)
         for j, n in enumerate(self.names):
-            bad = ~np.isfinite(arr[:, j]) | (arr[:, j] < self.lo[j] - tol[j]) | (arr[:, j] > self.hi[j] + tol[j])
-            if bad.any():
-                i = int(np.argmax(bad))
+            if outside[:, j].any():
+                i = int(np.argmax(outside[:, j]))
                 raise ValueError(f"{n}={float(arr[i, j])!r} (row {i}) is outside the design space: allowed range "
                                  f"[{self.lows[j]}, {self.highs[j]}]")
         return arr
+
+    def contains(self, theta) -> np.ndarray:
+        """(n,) bools: which of the designs lie in the box, under validate's rule, without raising."""
+        arr = np.asarray(theta, dtype=float).reshape(-1, self.d)
+        return ~self._outside(arr).any(axis=1)
+
+    def _outside(self, arr: np.ndarray) -> np.ndarray:
+        """(n, d) bools: entries non-finite or outside [low, high]; the round-off of from_unit(to_unit(.)) is in."""
+        tol = 1e-9 * (self.hi - self.lo)
+        return ~np.isfinite(arr) | (arr < self.lo - tol) | (arr > self.hi + tol)
 
     def sample_uniform(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """n uniform designs, physical units."""
