@@ -884,6 +884,8 @@ def test_box_contains_agrees_with_validate():
             want.append(False)
     assert want == [True, True, False, False, False, True]
     assert box.contains(rows).tolist() == want and box.contains(rows[0]).tolist() == [True]
+    with pytest.raises(ValueError, match="expected"):   # a wrong width is an error, not silently reshaped
+        box.contains([0.8, 0.005, 0.8, 0.005])
 
 
 def test_use_design_outside_the_authors_box_names_it():

@@ -58,11 +58,7 @@ class Box:
 
     def validate(self, theta) -> np.ndarray:
         """Return theta as an (n, d) float array, or raise ValueError naming the offending parameter."""
-        arr = np.asarray(theta, dtype=float)
-        arr = arr[None, :] if arr.ndim == 1 else arr
-        if arr.ndim != 2 or arr.shape[1] != self.d:
-            raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
-                             f"columns {self.names}")
+        arr = self._rows(theta)
         outside = self._outside(arr)
         for j, n in enumerate(self.names):
             if outside[:, j].any():
@@ -73,8 +69,16 @@ class Box:
 
     def contains(self, theta) -> np.ndarray:
         """(n,) bools: which of the designs lie in the box, under validate's rule, without raising."""
-        arr = np.asarray(theta, dtype=float).reshape(-1, self.d)
-        return ~self._outside(arr).any(axis=1)
+        return ~self._outside(self._rows(theta)).any(axis=1)
+
+    def _rows(self, theta) -> np.ndarray:
+        """theta as an (n, d) float array; a wrong shape raises, naming the columns."""
+        arr = np.asarray(theta, dtype=float)
+        arr = arr[None, :] if arr.ndim == 1 else arr
+        if arr.ndim != 2 or arr.shape[1] != self.d:
+            raise ValueError(f"theta has shape {np.shape(theta)}, expected (d,) or (n, d) with d={self.d} "
+                             f"columns {self.names}")
+        return arr
 
     def _outside(self, arr: np.ndarray) -> np.ndarray:
         """(n, d) bools: entries non-finite or outside [low, high]; the round-off of from_unit(to_unit(.)) is in."""
